@@ -1,0 +1,72 @@
+"""``slung``: the command-line front end. Parses, dispatches, prints errors; holds no logic of its own.
+
+Each subcommand lives in its own module exposing ``configure(parser)`` and ``run(args) -> int``; this file
+only maps names to modules, so commands can be added without touching each other. A :class:`UserError`
+(bad input) becomes one line on stderr and exit code 2; Ctrl-C exits with 130.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+
+from estimators.errors import UserError
+
+#: subcommand -> (module, one-line help). Modules are imported lazily so ``slung --help`` stays fast.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "sim": ("offboard.sim_cli", "simulate a scenario in one process (plant + estimator + controller)"),
+    "bench": ("offboard.bench_cli", "measure the speed of the plant, controller and estimator"),
+    "emulate": ("sim_bridge.emulator_cli", "run the MAVLink autopilot emulator (PX4 or ArduPilot flavour)"),
+    "fly": ("offboard.fly_cli", "fly a real or emulated vehicle over MAVLink"),
+    "demo": ("offboard.demo_cli", "start the emulator and fly the paper scenario end to end"),
+    "replay": ("offboard.replay_cli", "replay a .tlog through the estimator and controller"),
+}
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors and exit code 2 (argparse's own code, without the usage dump)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full parser; commands whose module is not installed are left out."""
+    parser = _Parser(prog="slung", description=__doc__.splitlines()[0] if __doc__ else None)
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    for name, (module_name, help_text) in COMMANDS.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name == module_name:
+                continue
+            raise
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        module.configure(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``slung`` console script; returns the process exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args._run(args) or 0)
+    except UserError as exc:
+        print(f"slung {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print(f"slung {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
