@@ -1,0 +1,41 @@
+"""The state estimate the controller consumes: one typed record, produced by the true-state path of the
+simulation, by the Kalman filters, and by replay. Model frame: world NWU (z up), ZYX Euler angles, SI.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+
+class ControlState(NamedTuple):
+    """What the sliding-mode controller needs at one tick (model frame, SI units, radians).
+
+    fx, fy: flat outputs of the two horizontal axes in the world frame and their derivatives, orders 0..5
+        (m, m/s, m/s^2, m/s^3, m/s^4, m/s^5); ``estimators.flatness`` defines the chain.
+    z, z_rate: vehicle height (m, up) and vertical velocity (m/s).
+    phi, theta, psi: roll, pitch, yaw (rad); phi_rate, theta_rate, psi_rate: their time derivatives (rad/s).
+    alpha_x, alpha_y: planar swing angles (rad, errata C5); alpha_x_rate, alpha_y_rate (rad/s).
+    """
+
+    fx: tuple[float, float, float, float, float, float]
+    fy: tuple[float, float, float, float, float, float]
+    z: float
+    z_rate: float
+    phi: float
+    theta: float
+    psi: float
+    phi_rate: float
+    theta_rate: float
+    psi_rate: float
+    alpha_x: float
+    alpha_y: float
+    alpha_x_rate: float
+    alpha_y_rate: float
+
+    def is_finite(self) -> bool:
+        """True when every field is a finite number (the controller refuses anything else)."""
+        import math
+
+        return all(math.isfinite(v) for v in self.fx) and all(math.isfinite(v) for v in self.fy) and all(
+            math.isfinite(v) for v in self[2:]
+        )
