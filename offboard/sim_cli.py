@@ -1,0 +1,139 @@
+"""``slung sim``: run a scenario in one process and write metrics, time series and figures.
+
+Usage: ``slung sim --scenario paper [--switching sign|smooth] [--epsilon E] [--duration S] [--seed N]
+[--sensors ideal|px4-typical] [--estimator truth|kf] [--no-load-sensor] [--vehicle FILE] --out DIR``
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from typing import Any
+
+from estimators.errors import UserError
+from estimators.vehicle import load_vehicle
+from offboard import metrics as metrics_mod
+from offboard import sim as sim_mod
+from offboard import smc
+from offboard.outputs import prepare_output_dir
+from offboard.scenarios import SCENARIOS, make_scenario
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite number."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+    return v
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    v = finite_float(text)
+    if v <= 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return v
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: a whole number >= 0."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return v
+
+
+def add_controller_arguments(p: argparse.ArgumentParser) -> None:
+    """Controller options shared by ``sim``, ``fly``, ``demo`` and ``replay``."""
+    p.add_argument("--switching", choices=("sign", "smooth"), default="sign",
+                   help="switching function: the paper's sign(.) or v/(|v|+eps) of eq. (92) (default: sign)")
+    p.add_argument("--epsilon", type=positive_float, default=1.0, metavar="E",
+                   help="smoothing width of eq. (92) for --switching smooth (default: 1, the paper's)")
+    p.add_argument("--vehicle", metavar="FILE", help="vehicle description (TOML); default: the paper's Table 1")
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``slung sim``."""
+    p.add_argument("--scenario", required=True, metavar="NAME",
+                   help=f"scenario to run: {', '.join(SCENARIOS)}")
+    add_controller_arguments(p)
+    p.add_argument("--duration", type=positive_float, metavar="S",
+                   help="simulated time in s (default: the scenario's)")
+    p.add_argument("--seed", type=non_negative_int, default=0, metavar="N", help="seed of disturbances and sensor noise")
+    p.add_argument("--sensors", choices=("ideal", "px4-typical"), default=None,
+                   help="sensor models feeding the estimator (default: none, the controller sees the true state)")
+    p.add_argument("--estimator", choices=("truth", "kf"), default="truth",
+                   help="truth: the controller sees the true state; kf: the Kalman filter on the sensor data")
+    p.add_argument("--no-load-sensor", action="store_true",
+                   help="no cable-angle sensor: the filter observes the swing through the accelerometer")
+    p.add_argument("--control-rate", type=positive_float, default=1000.0, metavar="HZ",
+                   help="controller rate in Hz (default 1000; the plant steps at 1 kHz)")
+    p.add_argument("--attitude-model", choices=("paper", "rigid"), default="paper",
+                   help="plant rotation: the paper's eq. (13) or the full rigid body (default: paper)")
+    p.add_argument("--no-figures", action="store_true", help="write metrics and time series only")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if needed)")
+
+
+def run_cli(args: argparse.Namespace) -> dict[str, Any]:
+    """Run ``slung sim`` and return its metrics (used by tests and the demo)."""
+    from offboard import report
+
+    out_dir = prepare_output_dir(args.out)
+    vehicle = load_vehicle(args.vehicle)
+    scenario = make_scenario(args.scenario, duration=args.duration, seed=args.seed)
+    plant_dt = 0.001
+    n_sub = round(1.0 / (args.control_rate * plant_dt))
+    if n_sub < 1 or abs(n_sub * plant_dt * args.control_rate - 1.0) > 1e-9:
+        raise UserError(
+            "--control-rate must divide the 1 kHz plant rate (e.g. 1000, 500, 250, 200, 100), "
+            f"got {args.control_rate:g}"
+        )
+    if args.estimator == "kf" and args.sensors is None:
+        args.sensors = "px4-typical"
+    config = sim_mod.SimConfig(
+        plant_dt=plant_dt,
+        control_rate=args.control_rate,
+        attitude_model=args.attitude_model,
+        sensors=args.sensors,
+        estimator=args.estimator,
+        load_sensor=not args.no_load_sensor,
+        seed=args.seed,
+    )
+    params = smc.ControllerParams.for_vehicle(vehicle, switching=args.switching, epsilon=args.epsilon)
+    progress = _progress_printer() if sys.stderr.isatty() else None
+    log = sim_mod.run(scenario, vehicle, params, config, progress=progress)
+    m = metrics_mod.compute(log)
+    m["config"]["switching"] = args.switching
+    m["config"]["epsilon"] = args.epsilon if args.switching == "smooth" else None
+    report.write_report(log, m, out_dir, figures=not args.no_figures)
+    print(f"scenario {scenario.name}: {scenario.description}")
+    print(metrics_mod.format_table(m))
+    print(f"report: {out_dir.resolve()}")
+    return m
+
+
+def _progress_printer() -> Any:
+    def show(fraction: float) -> None:
+        width = 30
+        done = int(fraction * width)
+        sys.stderr.write(f"\r[{'#' * done}{'.' * (width - done)}] {100 * fraction:5.1f}%")
+        sys.stderr.flush()
+        if fraction >= 0.999:
+            sys.stderr.write("\n")
+
+    return show
+
+
+def run(args: argparse.Namespace) -> int:
+    """Entry point of ``slung sim``; 0 when the run completed with finite values, 1 otherwise."""
+    m = run_cli(args)
+    if sys.stderr.isatty():
+        sys.stderr.write("\n")
+    return 0 if (m["completed"] and m["all_finite"]) else 1
