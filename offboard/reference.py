@@ -384,8 +384,9 @@ class Phase(Scalar):
         self.phase0 = _finite("initial phase", phase0)
         self._inv = 1.0 / self.Tr
         self._half = 0.5 * self.rate * self.Tr  # phase gained during one ramp
-        self._key: tuple[float, int] | None = None
-        self._cache: dict[int, tuple[Jet, Jet]] = {}
+        self._key: tuple[float, int] | None = None  # (t, n) of the cached sincos
+        self._phase = Jet.constant(self.phase0, 1)
+        self._cache: dict[float, tuple[Jet, Jet]] = {}
 
     def jet(self, t: float, n: int = ORDERS) -> Jet:
         s = t - self.t0
@@ -480,9 +481,25 @@ class HermiteSpline(Scalar):
         self.times = tuple(_finite("knot time", x) for x in times)
         self.values = tuple(_finite("knot value", x) for x in values)
         self.slopes = tuple(_finite("knot slope", x) for x in slopes)
-        for a, b in zip(self.times, self.times[1:]):
+        for a, b in itertools.pairwise(self.times):
             if not b > a:
                 raise TrajectoryError(f"knot times must increase, got {a!r} then {b!r}")
+        # one polynomial per half segment, precomputed: in x = (t - t_i) / T on [0, 1/2] and in y = 1 - x on
+        # [0, 1/2] (the mirror keeps the variable small, so no cancellation near the right end)
+        sc, h0c, h1c = _STEP.coefficients, _H0.coefficients, _H1.coefficients
+        self._pieces: list[tuple[float, float, PolynomialTaylor, PolynomialTaylor]] = []
+        for i in range(len(self.times) - 1):
+            T = self.times[i + 1] - self.times[i]
+            dp = self.values[i + 1] - self.values[i]
+            m0 = self.slopes[i] * T
+            m1 = self.slopes[i + 1] * T
+            # p(x) = p0 + dp S(x) + m0 h0(x) + m1 h1(x)
+            left = [dp * a + m0 * b + m1 * d for a, b, d in zip(sc, h0c, h1c)]
+            left[0] += self.values[i]
+            # with S(x) = 1 - S(y), h0(x) = -h1(y), h1(x) = -h0(y):  p = p1 - dp S(y) - m0 h1(y) - m1 h0(y)
+            right = [-(dp * a + m0 * d + m1 * b) for a, b, d in zip(sc, h0c, h1c)]
+            right[0] += self.values[i + 1]
+            self._pieces.append((self.times[i], 1.0 / T, PolynomialTaylor(left), PolynomialTaylor(right)))
 
     def jet(self, t: float, n: int = ORDERS) -> Jet:
         ts = self.times
@@ -497,25 +514,11 @@ class HermiteSpline(Scalar):
                 lo = mid
             else:
                 hi = mid
-        T = ts[hi] - ts[lo]
-        inv = 1.0 / T
-        x = (t - ts[lo]) * inv
-        dp = self.values[hi] - self.values[lo]
-        m0 = self.slopes[lo] * T
-        m1 = self.slopes[hi] * T
+        t0, inv, left, right = self._pieces[lo]
+        x = (t - t0) * inv
         if x <= 0.5:
-            # p = p0 + dp S(x) + m0 h0(x) + m1 h1(x)
-            s, h0, h1 = _STEP.taylor(x, n), _H0.taylor(x, n), _H1.taylor(x, n)
-            c = [dp * a + m0 * b + m1 * d for a, b, d in zip(s, h0, h1)]
-            c[0] += self.values[lo]
-        else:
-            # mirrored (y = 1 - x, small): S(x) = 1 - S(y), h0(x) = -h1(y), h1(x) = -h0(y)
-            y = 1.0 - x
-            s, h0, h1 = _STEP.taylor(y, n), _H0.taylor(y, n), _H1.taylor(y, n)
-            c = list(_mirrored(tuple(dp * a + m0 * d + m1 * b for a, b, d in zip(s, h0, h1))))
-            c = [-v for v in c]
-            c[0] += self.values[hi]
-        return Jet._raw(_scaled(tuple(c), inv))
+            return Jet._raw(_scaled(left.taylor(x, n), inv))
+        return Jet._raw(_scaled(_mirrored(right.taylor(1.0 - x, n)), inv))
 
     @property
     def end(self) -> float:
