@@ -72,6 +72,7 @@ def test_work_energy_balance_with_constant_thrust(model: str) -> None:
     """dE/dt = u (n . xi') + tau . eta' (E5): with constant u and tau = 0, E - int u (n . xi') dt is constant.
 
     The power integral is integrated with the same RK4 stages as the state (augmented system).
+    Measured: 5e-11 J while the thrust does ~100 J of work.
     """
     p = plant_params(VEHICLE, model)
     thrust = 1.1 * (p.M + p.m) * p.g
@@ -95,7 +96,7 @@ def test_work_energy_balance_with_constant_thrust(model: str) -> None:
         y = y + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
         worst = max(worst, abs(energy(list(y[:18]), p) - y[18] - e0))
     assert abs(y[18]) > 1.0  # the thrust did real work (J)
-    assert worst < 1e-8
+    assert worst < 1e-9
 
 
 # 2. Sphere form == the paper's angle form -------------------------------------------------------------------
