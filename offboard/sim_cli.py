@@ -66,7 +66,8 @@ def configure(p: argparse.ArgumentParser) -> None:
     add_controller_arguments(p)
     p.add_argument("--duration", type=positive_float, metavar="S",
                    help="simulated time in s (default: the scenario's)")
-    p.add_argument("--seed", type=non_negative_int, default=0, metavar="N", help="seed of disturbances and sensor noise")
+    p.add_argument("--seed", type=non_negative_int, default=0, metavar="N",
+                   help="seed of disturbances and sensor noise")
     p.add_argument("--sensors", choices=("ideal", "px4-typical"), default=None,
                    help="sensor models feeding the estimator (default: none, the controller sees the true state)")
     p.add_argument("--estimator", choices=("truth", "kf"), default="truth",
