@@ -468,3 +468,21 @@ def test_bad_trajectory_files_raise_one_line_user_errors(tmp_path, text, match):
 def test_missing_trajectory_file(tmp_path):
     with pytest.raises(UserError, match="cannot read trajectory file"):
         load_trajectory_file(tmp_path / "nope.toml")
+
+
+def test_examples_in_docs_load(tmp_path):
+    import re
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "references.md").read_text()
+    blocks = re.findall(r"```toml\n(.*?)```", doc, flags=re.S)
+    assert len(blocks) >= 4
+    for i, text in enumerate(blocks):
+        f = tmp_path / f"ex{i}.toml"
+        f.write_text(text)
+        ref = load_trajectory_file(f)
+        assert all(math.isfinite(v) for ch in ref.sample(ref.duration / 2) for v in ch)
+    (code,) = re.findall(r"```python\n(from offboard.*?)```", doc, flags=re.S)
+    scope: dict = {}
+    exec(code, scope)
+    assert scope["s"].z[0] == 2.0 and scope["s"].fx[1] != 0.0
