@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import numbers
 from collections.abc import Callable, Sequence
 from fractions import Fraction
 from math import comb
@@ -160,7 +161,7 @@ def _scaled(c: tuple[float, ...], inv_t: float) -> tuple[float, ...]:
 # argument checks
 # --------------------------------------------------------------------------------------------------------------
 def _finite(name: str, value: object) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TrajectoryError(f"{name} must be a number, got {value!r}")
     v = float(value)
     if not math.isfinite(v):
@@ -384,9 +385,8 @@ class Phase(Scalar):
         self.phase0 = _finite("initial phase", phase0)
         self._inv = 1.0 / self.Tr
         self._half = 0.5 * self.rate * self.Tr  # phase gained during one ramp
-        self._key: tuple[float, int] | None = None  # (t, n) of the cached sincos
-        self._phase = Jet.constant(self.phase0, 1)
-        self._cache: dict[float, tuple[Jet, Jet]] = {}
+        # (t, n, phase jet, {multiple: (sin, cos)}) of the last sincos call
+        self._entry: tuple[float, int, Jet, dict[float, tuple[Jet, Jet]]] = (math.nan, 0, Jet.constant(0.0, 1), {})
 
     def jet(self, t: float, n: int = ORDERS) -> Jet:
         s = t - self.t0
@@ -412,21 +412,25 @@ class Phase(Scalar):
         return Jet._raw(tuple(a - k * b for a, b in zip(lin, c)))
 
     def sincos(self, t: float, n: int, multiple: float = 1.0) -> tuple[Jet, Jet]:
-        """(sin, cos) of ``multiple * phase(t)``, cached for the last (t, n)."""
-        key = (t, n)
-        if key != self._key:
-            self._key = key
-            self._cache = {}
-            self._phase = self.jet(t, n)
-        hit = self._cache.get(multiple)
+        """(sin, cos) of ``multiple * phase(t)``, cached for the last (t, n).
+
+        The cache is one tuple replaced in a single assignment, so a concurrent caller can at worst recompute,
+        never read another instant's values.
+        """
+        entry = self._entry
+        if entry[0] != t or entry[1] != n:
+            entry = (t, n, self.jet(t, n), {})
+            self._entry = entry
+        cache = entry[3]
+        hit = cache.get(multiple)
         if hit is None:
-            ph = self._phase
+            ph = entry[2]
             if not any(ph.c[1:]):  # held (before the start or after the ramp-out): constants, no series work
                 a = multiple * ph.c[0]
                 hit = (Jet.constant(math.sin(a), n), Jet.constant(math.cos(a), n))
             else:
                 hit = (ph * multiple).sincos() if multiple != 1.0 else ph.sincos()
-            self._cache[multiple] = hit
+            cache[multiple] = hit
         return hit
 
     @property
@@ -592,7 +596,12 @@ class Composite:
         return (self.fx.jet(t, n), self.fy.jet(t, n), self.z.jet(t, n), self.psi.jet(t, n))
 
     def sample(self, t: float) -> FlatSample:
-        """Flat outputs and derivatives of orders 0..6 at ``t`` (s); any finite t (held outside the motion)."""
+        """Flat outputs and derivatives of orders 0..6 at ``t`` (s); any finite t (held outside the motion).
+
+        Raises ValueError for a non-finite ``t`` (so no NaN can leave a reference).
+        """
+        if not math.isfinite(t):
+            raise ValueError(f"reference sampled at a non-finite time t = {t!r} s")
         f = FACTORIALS
         out = []
         for ch in (self.fx, self.fy, self.z, self.psi):
@@ -607,7 +616,7 @@ def hover(x: float, y: float, z: float, psi: float = 0.0) -> Composite:
 
 
 def _pose(name: str, p: Sequence[float]) -> tuple[float, float, float, float]:
-    if isinstance(p, (str, bytes)) or len(p) not in (3, 4):
+    if isinstance(p, (str, bytes)) or not hasattr(p, "__len__") or len(p) not in (3, 4):
         raise TrajectoryError(f"{name} must be (x, y, z) or (x, y, z, psi), got {p!r}")
     vals = [_finite(f"{name}[{i}]", v) for i, v in enumerate(p)]
     if len(vals) == 3:
@@ -695,7 +704,7 @@ def figure_eight(
 
 
 def _center(center: object) -> tuple[float, float]:
-    if isinstance(center, (str, bytes)) or not isinstance(center, Sequence) or len(center) != 2:
+    if isinstance(center, (str, bytes)) or not hasattr(center, "__len__") or len(center) != 2:
         raise TrajectoryError(f"center must be (x, y) in m, got {center!r}")
     return _finite("center x", center[0]), _finite("center y", center[1])
 
@@ -748,7 +757,10 @@ def waypoints(
     1.4 times the smaller neighbouring secant so monotone data give a monotone path. Derivatives 2..7 vanish at each
     waypoint, so the path is C^7. psi is taken literally (no angle wrapping). One point: hover there.
     """
-    if isinstance(points, (str, bytes)) or len(points) == 0:
+    if isinstance(points, (str, bytes)):
+        raise TrajectoryError(f"waypoints: expected a sequence of (x, y, z[, psi]), got {points!r}")
+    points = list(points)
+    if len(points) == 0:
         raise TrajectoryError("waypoints: the list of points is empty; give at least one (x, y, z[, psi])")
     poses = [_pose(f"waypoint {i}", p) for i, p in enumerate(points)]
     t0 = _finite("t_start", t_start)

@@ -486,3 +486,15 @@ def test_examples_in_docs_load(tmp_path):
     scope: dict = {}
     exec(code, scope)
     assert scope["s"].z[0] == 2.0 and scope["s"].fx[1] != 0.0
+
+
+def test_numpy_inputs_and_non_finite_time():
+    ref = circle(np.array([1.0, 2.0]), np.float64(0.5), 6, np.int64(1))
+    assert ref.sample(0.0).fx[0] == 1.5 and isinstance(ref.sample(3.0).fx[0], float)
+    wp = waypoints(np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0]]), speed=np.float64(0.5))
+    assert wp.duration == pytest.approx(2.0)
+    with pytest.raises(TrajectoryError, match="waypoint 1"):
+        waypoints([(0, 0, 1), 5.0], speed=1.0)
+    for t in (math.nan, math.inf, -math.inf):
+        with pytest.raises(ValueError, match="non-finite"):
+            ref.sample(t)
