@@ -220,8 +220,9 @@ def step(
     ref_psi: reference heading, orders 0..2 at least (rad). Returns the saturated command and the new memory.
     The integrals advance by the time since the previous step (rectangle rule on the current error).
     """
-    if not (est.is_finite() and math.isfinite(t) and all(math.isfinite(a) for a in (*ref_fx, *ref_fy,
-                                                                                    *ref_z[:3], *ref_psi[:3]))):
+    # One sum catches any NaN or infinity in the reference (see ControlState.is_finite).
+    ref_sum = sum(ref_fx) + sum(ref_fy) + ref_z[0] + ref_z[1] + ref_z[2] + ref_psi[0] + ref_psi[1] + ref_psi[2]
+    if not (est.is_finite() and math.isfinite(t) and math.isfinite(ref_sum)):
         return hover_command(params), memory
 
     d = _derived(params)
@@ -297,6 +298,6 @@ def step(
     tau_psi, s4 = _clip(tau_psi, -ts_max, ts_max)
 
     cmd = Command(thrust, tau_phi, tau_theta, tau_psi, s_z, s_psi, sigma_x, sigma_y, s1 or s2 or s3 or s4, True)
-    if not all(math.isfinite(v) for v in (thrust, tau_phi, tau_theta, tau_psi, int_z, int_psi, int_fx, int_fy)):
+    if not math.isfinite(thrust + tau_phi + tau_theta + tau_psi + int_z + int_psi + int_fx + int_fy):
         return hover_command(params), memory
     return cmd, ControllerMemory(int_z, int_psi, int_fx, int_fy, t)
