@@ -44,3 +44,13 @@ def test_ci_runs_the_readme_test_command() -> None:
     command = 'pip install -e ".[test]" && pytest'
     assert command in readme
     assert command.replace("pip install", "pip install --quiet") in ci
+
+
+def test_bench_reports_figures() -> None:
+    """`slung bench` measures (tiny repeat counts here: this checks it runs and reports, not the speed)."""
+    from offboard.bench_cli import measure
+
+    r = measure(repeat=200, runs=1)
+    for name in ("plant_rk4_step", "reference_sample", "controller_step", "baseline_solve_ivp_rk45_step"):
+        assert 0.0 < r["micro"][name]["median_us"] <= r["micro"][name]["p99_us"]
+    assert r["paper_run"]["realtime_factor"] > 0.5  # generous sanity bound, not a performance assertion
