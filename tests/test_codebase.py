@@ -54,3 +54,14 @@ def test_bench_reports_figures() -> None:
     for name in ("plant_rk4_step", "reference_sample", "controller_step", "baseline_solve_ivp_rk45_step"):
         assert 0.0 < r["micro"][name]["median_us"] <= r["micro"][name]["p99_us"]
     assert r["paper_run"]["realtime_factor"] > 0.5  # generous sanity bound, not a performance assertion
+
+
+def test_vehicle_file_example_in_usage_docs_loads(tmp_path: Path) -> None:
+    from estimators.vehicle import load_vehicle
+
+    text = (ROOT / "docs" / "usage.md").read_text(encoding="utf-8")
+    block = text.split("```toml\n", 1)[1].split("```", 1)[0]
+    path = tmp_path / "v.toml"
+    path.write_text(block, encoding="utf-8")
+    v = load_vehicle(path)
+    assert v.name == "my-quad" and v.mass_load == 0.2 and v.cable_length == 0.3
