@@ -189,6 +189,9 @@ def format_table(metrics: dict[str, Any]) -> str:
             f"{metrics['residual_swing_rad']:.4f} rad, settling time "
             + (f"{st:.2f} s" if st is not None else "not settled")
         )
+    if metrics["cable"]["slack_steps"]:
+        lines.append(f"WARNING: the cable was slack for {metrics['cable']['slack_steps']} plant steps "
+                     f"(min tension {metrics['cable']['min_tension_n']:.3f} N): the rigid-cable model did not hold")
     lines.append(
         f"simulated {metrics['duration_s']:.1f} s in {metrics['wall_time_s']:.2f} s "
         f"({metrics['realtime_factor']:.1f}x real time)"

@@ -10,6 +10,7 @@ Everything is logged at the controller rate into preallocated arrays (:class:`Si
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable
@@ -24,6 +25,8 @@ from estimators.flatness import FlatConstants, flat_chain, flat_constants, world
 from estimators.vehicle import Vehicle
 from offboard import smc
 from sim_bridge import dynamics
+
+_LOG = logging.getLogger(__name__)
 
 
 class ReferenceLike(Protocol):
@@ -210,6 +213,9 @@ def run(
             x = rk4(x, u, p, config.plant_dt, t + i * config.plant_dt)
             tens = tension(x, u, p)
             if tens <= 0.0:
+                if slack_steps == 0:
+                    _LOG.warning("cable went slack at t = %.3f s (tension %.3f N): the rigid-cable model is not "
+                                 "valid while it is slack; the run continues and counts slack steps", t, tens)
                 slack_steps += 1
             min_tension = min(min_tension, tens)
             if sensors is not None:

@@ -149,3 +149,25 @@ def test_bad_vehicle_file(tmp_path: Path) -> None:
     proc = subprocess.run([*_slung(), "sim", "--scenario", "hover", "--vehicle", str(bad), "--out",
                            str(tmp_path / "o")], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "mass_vehicle" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_slack_cable_is_detected_and_reported(caplog: pytest.LogCaptureFixture) -> None:
+    """Throw the load upward with no thrust: the tension drops to zero and the run says so."""
+    from estimators.vehicle import Vehicle
+    from offboard import metrics as metrics_mod
+    from offboard import reference, sim, smc
+    from sim_bridge import dynamics
+
+    v = Vehicle()
+    gains = smc.Gains.from_poles()
+    params = smc.ControllerParams(vehicle=v, gains=gains, thrust_min=0.0, thrust_max=0.0)  # motors off
+    sc = sim.Scenario("drop", "free fall, load thrown up", 0.5, reference.hover(0.0, 0.0, 10.0),
+                      dynamics.make_state(position=(0, 0, 10), velocity=(0, 0, 0), cable=(0.0, 0.0, -1.0),
+                                          cable_rate=(0.0, 0.0, 0.0)))
+    with caplog.at_level("WARNING"):
+        log = sim.run(sc, v, params, sim.SimConfig())
+    m = metrics_mod.compute(log)
+    # free fall with r' = 0: tension exactly 0 -> slack (errata E5: T = m (M l |r'|^2 - u n.r) / M_t)
+    assert m["cable"]["slack_steps"] > 0 and m["cable"]["min_tension_n"] <= 0.0
+    assert any("slack" in r.message for r in caplog.records)
+    assert "slack" in metrics_mod.format_table(m)
