@@ -100,7 +100,7 @@ def measure(repeat: int = 20000, runs: int = 3, with_estimator: bool = False) ->
 
 def _estimator_tick(vehicle: Vehicle, repeat: int) -> dict[str, float]:
     """Per-tick cost of the Kalman filter fed by the px4-typical sensors (measurements + estimate)."""
-    from estimators import make_estimator
+    from estimators.factory import make_estimator
     from sim_bridge.sensors import SensorSuite
 
     p = dynamics.plant_params(vehicle)

@@ -164,7 +164,7 @@ def run(
 
         sensors = SensorSuite(config.sensors or "ideal", vehicle, rng, load_sensor=config.load_sensor)
     if config.estimator != "truth":
-        from estimators import make_estimator
+        from estimators.factory import make_estimator
 
         estimator = make_estimator(
             config.estimator, params.vehicle, load_sensor=config.load_sensor, rate_hz=config.control_rate
