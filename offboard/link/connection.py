@@ -1,0 +1,382 @@
+"""The pymavlink connection: URL, heartbeat and flavour, commands with acknowledgement, message intervals,
+vehicle-time to local-time mapping, and a tlog of every packet in and out.
+
+URLs (pymavlink's forms; ``scheme://`` spellings are accepted too):
+
+- ``udpin:HOST:PORT``  listen on HOST:PORT and answer whoever talks (PX4 SITL offboard: ``udpin:0.0.0.0:14540``);
+- ``udpout:HOST:PORT`` send to HOST:PORT (the autopilot listens there);
+- ``tcp:HOST:PORT``    connect to a TCP server (ArduPilot SITL ``tcp:127.0.0.1:5760``);
+- ``serial:/dev/ttyUSB0:921600`` or ``/dev/ttyUSB0`` with ``baud`` (companion computer on a telemetry port).
+
+Identity: we send as system ``source_system`` (default 255) component 191 (MAV_COMP_ID_ONBOARD_COMPUTER) and a
+1 Hz HEARTBEAT of type MAV_TYPE_ONBOARD_CONTROLLER (18), autopilot MAV_AUTOPILOT_INVALID (8).
+
+Flavour: from the autopilot's HEARTBEAT (component 1): ``autopilot`` 12 -> ``"px4"``, 3 -> ``"ardupilot"``;
+anything else is refused with a one-line error.
+
+tlog (QGroundControl format): each record is the 8-byte big-endian microseconds since the Unix epoch (low two
+bits cleared, as pymavlink does) followed by the raw packet, for every packet received (after the CRC check)
+and every packet sent; each record is one ``write`` on an unbuffered file, so the log is complete up to the
+last packet even if the process is killed.
+
+Time: :class:`VehicleClock` keeps ``offset = local - vehicle`` (s). With TIMESYNC answers it takes the offset of
+the exchange with the smallest round trip; without them it takes the smallest ``receive time - sample time``
+over the telemetry (the least-delayed packet bounds the offset), allowed to creep up by ``drift`` s/s so that a
+clock drift is followed.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+os.environ.setdefault("MAVLINK20", "1")
+
+from pymavlink import mavutil
+
+from estimators.errors import UserError
+
+MAV_COMP_ID_ONBOARD_COMPUTER = 191
+MAV_TYPE_ONBOARD_CONTROLLER = 18
+MAV_AUTOPILOT_INVALID = 8
+FLAVOURS = {12: "px4", 3: "ardupilot"}
+
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_RESULT_ACCEPTED = 0
+
+
+def normalize_url(url: str, baud: int | None = None) -> tuple[str, int]:
+    """pymavlink device string and baud rate from a user URL; UserError for what pymavlink cannot open."""
+    u = url.strip()
+    for scheme in ("udpin", "udpout", "udp", "tcp", "tcpin", "serial"):
+        if u.startswith(scheme + "://"):
+            u = scheme + ":" + u[len(scheme) + 3:]
+    b = 57600 if baud is None else int(baud)
+    if u.startswith("serial:"):
+        rest = u[len("serial:"):]
+        dev, _, maybe_baud = rest.rpartition(":")
+        if dev and maybe_baud.isdigit():
+            return dev, int(maybe_baud)
+        return rest, b
+    if u.startswith(("udpin:", "udpout:", "udp:", "tcp:", "tcpin:")):
+        parts = u.split(":")
+        if len(parts) != 3 or not parts[2].isdigit() or not (0 < int(parts[2]) < 65536):
+            raise UserError(f"bad connection URL {url!r}: expected e.g. udpin:0.0.0.0:14540 or tcp:127.0.0.1:5760")
+        return u, b
+    if u.startswith("/dev/") or u.upper().startswith("COM"):
+        return u, b
+    raise UserError(f"bad connection URL {url!r}: expected udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or "
+                    "serial:/dev/ttyXXX:BAUD")
+
+
+class TlogWriter:
+    """QGC-format tlog: ``>Q`` microseconds since the epoch + raw packet per record, unbuffered."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self._fh = open(path, "wb", buffering=0)  # noqa: SIM115 - closed by close()
+        self.records = 0
+
+    def write(self, packet: bytes, wall_time: float | None = None) -> None:
+        """Append one packet stamped with ``wall_time`` (s since the epoch; now if None)."""
+        us = int((time.time() if wall_time is None else wall_time) * 1e6) & ~3
+        self._fh.write(struct.pack(">Q", us) + packet)
+        self.records += 1
+
+    def close(self) -> None:
+        """Close the file (idempotent)."""
+        if not self._fh.closed:
+            self._fh.close()
+
+
+@dataclass
+class VehicleClock:
+    """Vehicle time (s since its boot) <-> local monotonic time (s). See module docstring."""
+
+    drift: float = 1e-4
+    offset: float | None = None
+    source: str = "none"
+    best_rtt: float = float("inf")
+    _last_local: float | None = None
+
+    def observe(self, vehicle_t: float, local_t: float) -> None:
+        """A telemetry sample stamped ``vehicle_t`` arrived at ``local_t``."""
+        if self.source == "timesync":
+            return
+        sample = local_t - vehicle_t
+        if self.offset is None:
+            self.offset, self.source = sample, "telemetry"
+        else:
+            creep = 0.0 if self._last_local is None else self.drift * max(0.0, local_t - self._last_local)
+            self.offset = min(self.offset + creep, sample)
+        self._last_local = local_t
+
+    def observe_timesync(self, vehicle_t: float, local_send: float, local_recv: float) -> None:
+        """A TIMESYNC round trip: sent at ``local_send``, answered with ``vehicle_t``, back at ``local_recv``."""
+        rtt = local_recv - local_send
+        if rtt < 0.0:
+            return
+        # keep the best exchange, but let old ones age so that drift is followed
+        if rtt <= self.best_rtt or self.source != "timesync":
+            self.best_rtt = rtt
+            self.offset = 0.5 * (local_send + local_recv) - vehicle_t
+            self.source = "timesync"
+        else:
+            self.best_rtt += 1e-3
+
+    def to_local(self, vehicle_t: float) -> float:
+        """Local time of a vehicle time (vehicle time itself before any observation)."""
+        return vehicle_t + (self.offset or 0.0)
+
+    def to_vehicle(self, local_t: float) -> float:
+        """Vehicle time of a local time."""
+        return local_t - (self.offset or 0.0)
+
+
+@dataclass
+class VehicleInfo:
+    """The autopilot we talk to: ids, flavour (``px4`` / ``ardupilot``), MAV_TYPE, last heartbeat."""
+
+    system: int
+    component: int
+    flavour: str
+    mav_type: int
+    base_mode: int = 0
+    custom_mode: int = 0
+    system_status: int = 0
+    last_heartbeat: float = 0.0  # local monotonic time
+
+    @property
+    def armed(self) -> bool:
+        """SAFETY_ARMED flag of the last heartbeat."""
+        return bool(self.base_mode & 128)
+
+
+@dataclass
+class Received:
+    """A received message with its local monotonic receive time (s)."""
+
+    msg: Any
+    t_local: float
+
+
+@dataclass
+class LinkStats:
+    """Counters of the link (since open)."""
+
+    received: int = 0
+    sent: int = 0
+    bad_data: int = 0
+    foreign: int = 0
+    by_type: dict[str, int] = field(default_factory=dict)
+
+
+class MavConnection:
+    """One MAVLink link to one autopilot, single-threaded: call :meth:`poll` often (it never blocks)."""
+
+    def __init__(self, url: str, *, baud: int | None = None, tlog_path: str | os.PathLike[str] | None = None,
+                 source_system: int = 255, source_component: int = MAV_COMP_ID_ONBOARD_COMPUTER) -> None:
+        device, b = normalize_url(url, baud)
+        try:
+            self.conn = mavutil.mavlink_connection(device, baud=b, source_system=source_system,
+                                                   source_component=source_component, autoreconnect=False,
+                                                   robust_parsing=True)
+        except Exception as exc:  # pymavlink raises assorted OSError / SerialException types
+            raise UserError(f"cannot open {url!r}: {exc}") from None
+        self.mav = self.conn.mav
+        self.url = url
+        self.tlog = TlogWriter(tlog_path) if tlog_path is not None else None
+        self.clock = VehicleClock()
+        self.stats = LinkStats()
+        self.vehicle: VehicleInfo | None = None
+        self.acks: dict[int, tuple[int, float]] = {}  # command -> (result, local time)
+        self.params: dict[str, float] = {}
+        self.statustexts: list[str] = []
+        self._timesync_pending: dict[int, float] = {}
+        self._last_hb_sent = -1e9
+        self._closed = False
+
+    # ---------------------------------------------------------------------------------------- sending ---
+    def send(self, msg: Any) -> bytes:
+        """Pack ``msg`` with our ids and sequence, write it and log it; returns the bytes written."""
+        buf = msg.pack(self.mav)
+        self.mav.seq = (self.mav.seq + 1) % 256
+        self.conn.write(buf)
+        self.stats.sent += 1
+        if self.tlog is not None:
+            self.tlog.write(buf)
+        return buf
+
+    def heartbeat(self, now: float, period: float = 1.0) -> None:
+        """Send our HEARTBEAT if ``period`` s have passed since the last one (``now``: local monotonic s)."""
+        if now - self._last_hb_sent >= period:
+            self._last_hb_sent = now
+            self.send(self.mav.heartbeat_encode(MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, 4))
+
+    def command_long(self, command: int, *params: float) -> None:
+        """Send COMMAND_LONG to the autopilot (no wait; see :meth:`command`)."""
+        v = self._require_vehicle()
+        p = list(params) + [0.0] * (7 - len(params))
+        self.acks.pop(command, None)
+        self.send(self.mav.command_long_encode(v.system, v.component, command, 0, *p[:7]))
+
+    def command(self, command: int, *params: float, timeout: float = 0.5, retries: int = 3,
+                idle: Any = None) -> int | None:
+        """COMMAND_LONG with acknowledgement: the MAV_RESULT, or None after ``retries`` timeouts.
+
+        idle: called (with no argument) while waiting, e.g. to keep a setpoint stream alive.
+        """
+        for _ in range(max(1, retries)):
+            self.command_long(command, *params)
+            t_end = time.monotonic() + timeout
+            while time.monotonic() < t_end:
+                self.poll()
+                if command in self.acks:
+                    return self.acks[command][0]
+                if idle is not None:
+                    idle()
+                time.sleep(0.002)
+        return None
+
+    def set_message_interval(self, message_id: int, rate_hz: float, idle: Any = None) -> int | None:
+        """MAV_CMD_SET_MESSAGE_INTERVAL: ``rate_hz`` > 0 sets the rate, 0 restores the default, < 0 disables."""
+        interval = -1.0 if rate_hz < 0 else 0.0 if rate_hz == 0 else 1e6 / rate_hz
+        return self.command(MAV_CMD_SET_MESSAGE_INTERVAL, float(message_id), interval, idle=idle)
+
+    def request_timesync(self, now: float) -> None:
+        """Send a TIMESYNC request stamped with our local time ``now`` (s)."""
+        ns = int(now * 1e9)
+        self._timesync_pending[ns] = now
+        if len(self._timesync_pending) > 16:
+            self._timesync_pending.pop(next(iter(self._timesync_pending)))
+        self.send(self.mav.timesync_encode(0, ns))
+
+    def param_set(self, name: str, value: float, param_type: int = 9) -> None:
+        """PARAM_SET (no wait; the PARAM_VALUE answer lands in :attr:`params`)."""
+        v = self._require_vehicle()
+        self.send(self.mav.param_set_encode(v.system, v.component, name.encode("ascii"), float(value), param_type))
+
+    def param_request(self, name: str) -> None:
+        """PARAM_REQUEST_READ by name (the answer lands in :attr:`params`)."""
+        v = self._require_vehicle()
+        self.send(self.mav.param_request_read_encode(v.system, v.component, name.encode("ascii"), -1))
+
+    def param_get(self, name: str, timeout: float = 1.0, retries: int = 2) -> float | None:
+        """Read a parameter (blocking up to ``timeout`` x ``retries``); None if the autopilot did not answer."""
+        self.params.pop(name, None)
+        for _ in range(retries):
+            self.param_request(name)
+            t_end = time.monotonic() + timeout
+            while time.monotonic() < t_end:
+                self.poll()
+                if name in self.params:
+                    return self.params[name]
+                time.sleep(0.002)
+        return None
+
+    # -------------------------------------------------------------------------------------- receiving ---
+    def poll(self) -> list[Received]:
+        """Every message waiting on the link (never blocks), after bookkeeping (heartbeat, acks, timesync,
+        parameters, tlog). Messages from systems other than the autopilot's are returned too (the decoder
+        filters them)."""
+        out: list[Received] = []
+        conn = self.conn
+        while True:
+            try:
+                msg = conn.recv_msg()
+            except Exception:  # a malformed packet: pymavlink raises from the parser in some versions
+                self.stats.bad_data += 1
+                continue
+            if msg is None:
+                break
+            now = time.monotonic()
+            kind = msg.get_type()
+            if kind == "BAD_DATA":
+                self.stats.bad_data += 1
+                continue
+            self.stats.received += 1
+            self.stats.by_type[kind] = self.stats.by_type.get(kind, 0) + 1
+            if self.tlog is not None:
+                self.tlog.write(msg.get_msgbuf())
+            self._bookkeep(msg, kind, now)
+            out.append(Received(msg, now))
+        return out
+
+    def _bookkeep(self, msg: Any, kind: str, now: float) -> None:
+        v = self.vehicle
+        src = msg.get_srcSystem()
+        if kind == "HEARTBEAT":
+            comp = msg.get_srcComponent()
+            if v is not None and src == v.system and comp == v.component:
+                v.base_mode, v.custom_mode = msg.base_mode, msg.custom_mode
+                v.system_status, v.last_heartbeat = msg.system_status, now
+            return
+        if v is not None and src != v.system:
+            self.stats.foreign += 1
+            return
+        if kind == "COMMAND_ACK":
+            self.acks[msg.command] = (msg.result, now)
+        elif kind == "TIMESYNC":
+            if msg.tc1 != 0 and msg.ts1 in self._timesync_pending:
+                sent = self._timesync_pending.pop(msg.ts1)
+                self.clock.observe_timesync(msg.tc1 * 1e-9, sent, now)
+            elif msg.tc1 == 0:  # the autopilot asks us: answer with our time
+                self.send(self.mav.timesync_encode(int(now * 1e9), msg.ts1))
+        elif kind == "PARAM_VALUE":
+            name = msg.param_id.decode("ascii", "replace") if isinstance(msg.param_id, bytes) else msg.param_id
+            self.params[name.rstrip("\x00")] = float(msg.param_value)
+        elif kind == "STATUSTEXT":
+            text = msg.text.decode("ascii", "replace") if isinstance(msg.text, bytes) else str(msg.text)
+            self.statustexts.append(text.rstrip("\x00"))
+
+    def wait_heartbeat(self, timeout: float = 10.0, idle: Any = None) -> VehicleInfo:
+        """Wait for the autopilot's HEARTBEAT (component 1 preferred) and identify its flavour.
+
+        UserError on timeout or for an autopilot that is neither PX4 nor ArduPilot.
+        """
+        t_end = time.monotonic() + timeout
+        other: str | None = None
+        while time.monotonic() < t_end:
+            self.heartbeat(time.monotonic())
+            for r in self.poll():
+                m = r.msg
+                if m.get_type() != "HEARTBEAT" or m.autopilot == MAV_AUTOPILOT_INVALID:
+                    continue
+                flavour = FLAVOURS.get(m.autopilot)
+                if flavour is None:
+                    other = f"autopilot type {m.autopilot}"
+                    continue
+                self.vehicle = VehicleInfo(m.get_srcSystem(), m.get_srcComponent(), flavour, m.type, m.base_mode,
+                                           m.custom_mode, m.system_status, r.t_local)
+                # answers must reach the right peer: pymavlink replies to the last sender already
+                self.conn.target_system = self.vehicle.system
+                self.conn.target_component = self.vehicle.component
+                return self.vehicle
+            if idle is not None:
+                idle()
+            time.sleep(0.005)
+        if other is not None:
+            raise UserError(f"{self.url}: the autopilot is neither PX4 (12) nor ArduPilot (3): {other}")
+        raise UserError(f"no autopilot heartbeat on {self.url} within {timeout:g} s")
+
+    def _require_vehicle(self) -> VehicleInfo:
+        if self.vehicle is None:
+            raise RuntimeError("no autopilot yet: call wait_heartbeat() first")
+        return self.vehicle
+
+    def close(self) -> None:
+        """Close the socket / port and the tlog (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self.conn.close()
+        finally:
+            if self.tlog is not None:
+                self.tlog.close()
+
+
+__all__ = ["FLAVOURS", "LinkStats", "MavConnection", "Received", "TlogWriter", "VehicleClock", "VehicleInfo",
+           "normalize_url"]

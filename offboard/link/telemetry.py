@@ -1,0 +1,158 @@
+"""MAVLink telemetry -> the estimator's measurement records (``estimators.measurements``), model frame.
+
+Every NED / FRD quantity is converted with ``estimators.frames`` (nothing is re-implemented here). Record time
+``t`` is the VEHICLE's sample time in seconds since its boot, from the message's own ``time_boot_ms`` or
+``time_usec`` (the filters place measurements by sample time; ``offboard.link.connection.VehicleClock`` maps it to
+local time for staleness and latency figures).
+
+Decoded messages:
+
+- ATTITUDE -> :class:`Attitude` (Euler angles and body rates);
+- ATTITUDE_QUATERNION -> :class:`Attitude` (only when ``use_attitude_quaternion``: the two carry the same
+  estimate, and a filter fed both would count it twice);
+- LOCAL_POSITION_NED -> :class:`PositionVelocity`;
+- ODOMETRY (frame LOCAL_NED; velocity in LOCAL_NED or BODY_FRD, rotated to the world with the message's own
+  quaternion) -> :class:`PositionVelocity` (only when ``use_odometry``, for the same reason);
+- HIGHRES_IMU (m/s^2, rad/s) and SCALED_IMU (mg, mrad/s) -> :class:`Imu` (specific force: +g on body z up at rest);
+- DEBUG_VECT named ``LOADANG`` (the emulator's cable-angle sensor, ``docs/emulator.md``): x = swing in the
+  North-Down plane ``atan2(r_N, r_D)``, y = in the East-Down plane ``atan2(r_E, r_D)`` -> :class:`LoadAngle`,
+  converted by rebuilding the cable direction ``r_ned ~ (tan x, tan y, 1)`` and taking the model frame's
+  planar angles of ``frames.ned_to_model_vector(r_ned)`` (so ``alpha_y = x`` and ``alpha_x = -y``).
+
+Messages from other systems (e.g. a payload reporting as its own system) and non-finite values are refused
+(counted in :attr:`TelemetryDecoder.counts`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from estimators.frames import (
+    frd_to_model_body,
+    ned_euler_to_model,
+    ned_quaternion_to_model,
+    ned_to_model_vector,
+    quaternion_to_euler,
+)
+from estimators.measurements import Attitude, Imu, LoadAngle, Measurement, PositionVelocity, is_finite
+
+LOAD_ANGLE_NAME = "LOADANG"
+MAV_FRAME_LOCAL_NED = 1
+MAV_FRAME_BODY_FRD = 12
+G0 = 9.80665
+
+#: message name -> message id, for SET_MESSAGE_INTERVAL requests
+MESSAGE_IDS: dict[str, int] = {
+    "ATTITUDE": 30,
+    "ATTITUDE_QUATERNION": 31,
+    "LOCAL_POSITION_NED": 32,
+    "HIGHRES_IMU": 105,
+    "SCALED_IMU": 26,
+    "ODOMETRY": 331,
+    "DEBUG_VECT": 250,
+    "TIMESYNC": 111,
+}
+
+
+def _vehicle_time_ms(ms: int) -> float:
+    return ms * 1e-3
+
+
+def _vehicle_time_us(us: int) -> float:
+    return us * 1e-6
+
+
+def load_angle_from_ned(t: float, swing_n: float, swing_e: float) -> LoadAngle:
+    """LoadAngle (model frame) from the North-Down and East-Down plane swing angles (rad)."""
+    rx, ry, rz = ned_to_model_vector(math.tan(swing_n), math.tan(swing_e), 1.0)
+    return LoadAngle(t, math.atan2(ry, -rz), math.atan2(rx, -rz))
+
+
+def _rotate_body_to_world(q: tuple[float, float, float, float], v: tuple[float, float, float]) -> tuple[
+        float, float, float]:
+    """v_world = R(q) v_body for a unit quaternion (w, x, y, z) (frame-agnostic)."""
+    w, x, y, z = q
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    a, b, c = v
+    r00, r01, r02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    r10, r11, r12 = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    r20, r21, r22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    return (r00 * a + r01 * b + r02 * c, r10 * a + r11 * b + r12 * c, r20 * a + r21 * b + r22 * c)
+
+
+@dataclass
+class TelemetryDecoder:
+    """Stateless apart from counters. ``system``: the autopilot's system id (others are ignored, None = any)."""
+
+    system: int | None = None
+    use_attitude_quaternion: bool = False
+    use_odometry: bool = False
+    counts: dict[str, int] = field(default_factory=dict)
+
+    def _count(self, key: str) -> None:
+        self.counts[key] = self.counts.get(key, 0) + 1
+
+    def decode(self, msg: Any) -> Measurement | None:
+        """The measurement a pymavlink message carries, or None (not telemetry we use / refused)."""
+        kind = msg.get_type()
+        if self.system is not None and msg.get_srcSystem() != self.system:
+            return None
+        m: Measurement | None
+        if kind == "ATTITUDE":
+            phi, theta, psi = ned_euler_to_model(msg.roll, msg.pitch, msg.yaw)
+            p, q, r = frd_to_model_body(msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+            m = Attitude(_vehicle_time_ms(msg.time_boot_ms), phi, theta, psi, p, q, r)
+        elif kind == "ATTITUDE_QUATERNION" and self.use_attitude_quaternion:
+            try:
+                phi, theta, psi = quaternion_to_euler(*ned_quaternion_to_model(msg.q1, msg.q2, msg.q3, msg.q4))
+            except ValueError:
+                self._count("refused_nonfinite")
+                return None
+            p, q, r = frd_to_model_body(msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+            m = Attitude(_vehicle_time_ms(msg.time_boot_ms), phi, theta, psi, p, q, r)
+        elif kind == "LOCAL_POSITION_NED":
+            x, y, z = ned_to_model_vector(msg.x, msg.y, msg.z)
+            vx, vy, vz = ned_to_model_vector(msg.vx, msg.vy, msg.vz)
+            m = PositionVelocity(_vehicle_time_ms(msg.time_boot_ms), x, y, z, vx, vy, vz)
+        elif kind == "ODOMETRY" and self.use_odometry:
+            if msg.frame_id != MAV_FRAME_LOCAL_NED:
+                self._count("refused_frame")
+                return None
+            v_ned = (msg.vx, msg.vy, msg.vz)
+            if msg.child_frame_id == MAV_FRAME_BODY_FRD:
+                if not all(math.isfinite(a) for a in msg.q) or sum(a * a for a in msg.q) < 0.5:
+                    self._count("refused_nonfinite")
+                    return None
+                v_ned = _rotate_body_to_world(tuple(msg.q), v_ned)  # type: ignore[arg-type]
+            x, y, z = ned_to_model_vector(msg.x, msg.y, msg.z)
+            vx, vy, vz = ned_to_model_vector(*v_ned)
+            m = PositionVelocity(_vehicle_time_us(msg.time_usec), x, y, z, vx, vy, vz)
+        elif kind == "HIGHRES_IMU":
+            ax, ay, az = frd_to_model_body(msg.xacc, msg.yacc, msg.zacc)
+            gx, gy, gz = frd_to_model_body(msg.xgyro, msg.ygyro, msg.zgyro)
+            m = Imu(_vehicle_time_us(msg.time_usec), ax, ay, az, gx, gy, gz)
+        elif kind == "SCALED_IMU":
+            ax, ay, az = frd_to_model_body(msg.xacc * G0 * 1e-3, msg.yacc * G0 * 1e-3, msg.zacc * G0 * 1e-3)
+            gx, gy, gz = frd_to_model_body(msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3)
+            m = Imu(_vehicle_time_ms(msg.time_boot_ms), ax, ay, az, gx, gy, gz)
+        elif kind == "DEBUG_VECT":
+            name = msg.name.decode("ascii", "replace") if isinstance(msg.name, bytes) else str(msg.name)
+            if name.rstrip("\x00") != LOAD_ANGLE_NAME:
+                return None
+            if not (math.isfinite(msg.x) and math.isfinite(msg.y) and abs(msg.x) < 1.5 and abs(msg.y) < 1.5):
+                self._count("refused_nonfinite")
+                return None
+            m = load_angle_from_ned(_vehicle_time_us(msg.time_usec), msg.x, msg.y)
+        else:
+            return None
+        if not is_finite(m):
+            self._count("refused_nonfinite")
+            return None
+        self._count(type(m).__name__)
+        return m
+
+
+__all__ = ["LOAD_ANGLE_NAME", "MESSAGE_IDS", "TelemetryDecoder", "load_angle_from_ned"]

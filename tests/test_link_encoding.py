@@ -1,0 +1,173 @@
+"""Setpoint encoding, telemetry decoding and time mapping against real pymavlink packing / parsing."""
+
+from __future__ import annotations
+
+import math
+import os
+import struct
+
+import pytest
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil
+
+from estimators import frames
+from estimators.errors import UserError
+from estimators.measurements import Attitude, Imu, LoadAngle, PositionVelocity
+from offboard.link import setpoints as spm
+from offboard.link.connection import TlogWriter, VehicleClock, normalize_url
+from offboard.link.telemetry import TelemetryDecoder, load_angle_from_ned
+
+
+def _mav(system: int = 1, component: int = 1) -> mavutil.mavlink.MAVLink:
+    return mavutil.mavlink.MAVLink(None, srcSystem=system, srcComponent=component)
+
+
+def _wire(msg, system: int = 1, component: int = 1):
+    """Pack with one MAVLink instance and parse with another: the bytes a peer would see."""
+    buf = msg.pack(_mav(system, component))
+    rx = _mav(255, 191)
+    out = rx.parse_buffer(buf)
+    assert out is not None and len(out) == 1
+    return out[0], buf
+
+
+def test_attitude_setpoint_round_trip() -> None:
+    q = frames.model_quaternion_to_ned(*frames.euler_to_quaternion(0.1, -0.2, 0.7))
+    sp = spm.AttitudeTarget(q, 0.3, -0.4, 0.5, 0.61, spm.MASK_ATTITUDE)
+    msg = spm.encode(_mav(255, 191), sp, 12.345, 1, 1)
+    got, _buf = _wire(msg, 255, 191)
+    assert got.get_type() == "SET_ATTITUDE_TARGET" and got.target_system == 1 and got.time_boot_ms == 12345
+    back = spm.decode(got)
+    assert back.type_mask == 7
+    for a, b in zip(back[:1][0], q):
+        assert a == pytest.approx(b, abs=1e-7)  # float32 on the wire
+    assert back.thrust == pytest.approx(0.61, abs=1e-7) and back.yaw_rate == pytest.approx(0.5, abs=1e-7)
+
+
+def test_actuator_setpoint_round_trip() -> None:
+    sp = spm.ActuatorTarget(0.25, -0.5, 0.125, 0.4)
+    got, _ = _wire(spm.encode(_mav(), sp, 2.0, 1, 1))
+    assert got.get_type() == "SET_ACTUATOR_CONTROL_TARGET" and got.group_mlx == 0 and got.time_usec == 2_000_000
+    assert list(got.controls[:4]) == pytest.approx([0.25, -0.5, 0.125, 0.4], abs=1e-7)
+    assert list(got.controls[4:]) == [0.0] * 4
+    assert spm.decode(got) == pytest.approx(sp, abs=1e-7)
+
+
+@pytest.mark.parametrize("bad", [
+    spm.AttitudeTarget((1.0, 0.0, 0.0, 0.0), math.nan, 0.0, 0.0, 0.5, 7),
+    spm.AttitudeTarget((1.0, 0.0, 0.0, math.inf), 0.0, 0.0, 0.0, 0.5, 7),
+    spm.AttitudeTarget((0.9, 0.0, 0.0, 0.0), 0.0, 0.0, 0.0, 0.5, 7),
+    spm.AttitudeTarget((1.0, 0.0, 0.0, 0.0), 0.0, 0.0, 0.0, 1.2, 7),
+    spm.ActuatorTarget(0.0, math.nan, 0.0, 0.5),
+    spm.ActuatorTarget(0.0, 0.0, 1.5, 0.5),
+])
+def test_non_finite_or_out_of_range_setpoints_are_refused(bad) -> None:
+    with pytest.raises(spm.SetpointError):
+        spm.encode(_mav(), bad, 1.0, 1, 1)
+
+
+def test_attitude_telemetry_to_model_frame() -> None:
+    mav = _mav()
+    got, _ = _wire(mav.attitude_encode(1500, 0.1, 0.2, -0.3, 0.4, 0.5, 0.6))
+    m = TelemetryDecoder(system=1).decode(got)
+    assert isinstance(m, Attitude) and m.t == pytest.approx(1.5)
+    assert (m.phi, m.theta, m.psi) == pytest.approx((0.1, -0.2, 0.3), abs=1e-7)
+    assert (m.p, m.q, m.r) == pytest.approx((0.4, -0.5, -0.6), abs=1e-7)
+
+
+def test_position_and_imu_telemetry_to_model_frame() -> None:
+    mav = _mav()
+    dec = TelemetryDecoder(system=1)
+    got, _ = _wire(mav.local_position_ned_encode(2000, 1.0, 2.0, -3.0, 0.1, 0.2, -0.3))
+    m = dec.decode(got)
+    assert isinstance(m, PositionVelocity) and m.t == pytest.approx(2.0)
+    assert (m.x, m.y, m.z, m.vx, m.vy, m.vz) == pytest.approx((1.0, -2.0, 3.0, 0.1, -0.2, 0.3), abs=1e-6)
+    # level and at rest: PX4 reports specific force (0, 0, -g) in FRD; the model's FLU has +g up
+    got, _ = _wire(mav.highres_imu_encode(2_500_000, 0.0, 0.1, -9.81, 0.01, 0.02, 0.03, 0, 0, 0, 0, 0, 0, 0, 0))
+    m = dec.decode(got)
+    assert isinstance(m, Imu) and m.t == pytest.approx(2.5)
+    assert (m.ax, m.ay, m.az) == pytest.approx((0.0, -0.1, 9.81), abs=1e-5)
+    assert (m.gx, m.gy, m.gz) == pytest.approx((0.01, -0.02, -0.03), abs=1e-7)
+    got, _ = _wire(mav.scaled_imu_encode(3000, 0, 0, -1000, 0, 0, 100, 0, 0, 0))
+    m = dec.decode(got)
+    assert m.az == pytest.approx(9.80665, rel=1e-6) and m.gz == pytest.approx(-0.1)
+
+
+def test_odometry_body_velocity_rotated_to_world() -> None:
+    # heading 90 deg east (NED yaw +pi/2), moving forward at 1 m/s -> NED velocity east -> model vy = -1
+    q = frames.euler_to_quaternion(0.0, 0.0, math.pi / 2)
+    got, _ = _wire(_mav().odometry_encode(4_000_000, 1, 12, 1.0, 2.0, -3.0, list(q), 1.0, 0.0, 0.0, 0, 0, 0,
+                                          [math.nan] * 21, [math.nan] * 21, 0, 0, 100))
+    m = TelemetryDecoder(system=1, use_odometry=True).decode(got)
+    assert isinstance(m, PositionVelocity) and m.t == pytest.approx(4.0)
+    assert (m.vx, m.vy, m.vz) == pytest.approx((0.0, -1.0, 0.0), abs=1e-6)
+    assert TelemetryDecoder(system=1).decode(got) is None  # off by default: the same estimate as LOCAL_POSITION
+
+
+def test_load_angle_conversion() -> None:
+    # load north of the vehicle (x > 0) and east (y > 0): model alpha_y > 0 (+x), alpha_x < 0 (east is -y)
+    m = load_angle_from_ned(1.0, 0.2, 0.1)
+    assert isinstance(m, LoadAngle) and m.alpha_y == pytest.approx(0.2) and m.alpha_x == pytest.approx(-0.1)
+    got, _ = _wire(_mav().debug_vect_encode(b"LOADANG", 5_000_000, 0.05, -0.03, 0.06))
+    m = TelemetryDecoder(system=1).decode(got)
+    assert m.t == pytest.approx(5.0) and m.alpha_y == pytest.approx(0.05) and m.alpha_x == pytest.approx(0.03)
+    got, _ = _wire(_mav().debug_vect_encode(b"OTHER", 5_000_000, 0.05, -0.03, 0.06))
+    assert TelemetryDecoder(system=1).decode(got) is None
+
+
+def test_foreign_system_and_nan_telemetry_refused() -> None:
+    got, _ = _wire(_mav(2, 35).attitude_encode(1000, 0.1, 0.0, 0.0, 0.0, 0.0, 0.0), 2, 35)
+    dec = TelemetryDecoder(system=1)
+    assert dec.decode(got) is None
+    got, _ = _wire(_mav().attitude_encode(1000, math.nan, 0.0, 0.0, 0.0, 0.0, 0.0))
+    assert dec.decode(got) is None and dec.counts["refused_nonfinite"] == 1
+
+
+def test_clock_from_telemetry_takes_least_delayed_sample_and_follows_drift() -> None:
+    c = VehicleClock(drift=1e-3)
+    for vt, lt in [(1.0, 101.010), (1.1, 101.102), (1.2, 101.230)]:
+        c.observe(vt, lt)
+    assert c.offset == pytest.approx(100.002, abs=2e-4) and c.source == "telemetry"
+    assert c.to_local(2.0) == pytest.approx(2.0 + c.offset) and c.to_vehicle(c.to_local(2.0)) == pytest.approx(2.0)
+    # the vehicle clock runs slow: every sample now arrives later; the offset creeps up at most 1e-3 s/s
+    c.observe(100.0, 300.0)
+    assert 100.003 < c.offset <= 100.0022 + 1e-3 * (300.0 - 101.230) + 1e-12
+
+
+def test_clock_from_timesync_uses_round_trip_midpoint() -> None:
+    c = VehicleClock()
+    c.observe(1.0, 101.5)
+    c.observe_timesync(5.0, 104.0, 104.004)
+    assert c.source == "timesync" and c.offset == pytest.approx(99.002)
+    c.observe_timesync(6.0, 105.0, 105.020)  # worse round trip: ignored
+    assert c.offset == pytest.approx(99.002)
+    c.observe(1.0, 50.0)  # telemetry no longer moves a timesync offset
+    assert c.offset == pytest.approx(99.002)
+
+
+def test_tlog_format_is_readable_by_pymavlink(tmp_path) -> None:
+    path = tmp_path / "x.tlog"
+    w = TlogWriter(path)
+    mav = _mav()
+    for i in range(3):
+        w.write(mav.attitude_encode(i * 10, 0.1 * i, 0.0, 0.0, 0.0, 0.0, 0.0).pack(mav), 1_700_000_000.0 + i)
+    w.close()
+    raw = path.read_bytes()
+    assert struct.unpack(">Q", raw[:8])[0] == int(1_700_000_000.0 * 1e6) & ~3
+    log = mavutil.mavlink_connection(str(path))
+    msgs = []
+    while (m := log.recv_match(type="ATTITUDE")) is not None:
+        msgs.append(m)
+    assert [round(m.roll, 6) for m in msgs] == [0.0, 0.1, 0.2]
+    assert msgs[2]._timestamp == pytest.approx(1_700_000_002.0, abs=1e-5)
+
+
+def test_url_forms() -> None:
+    assert normalize_url("udpin://0.0.0.0:14540") == ("udpin:0.0.0.0:14540", 57600)
+    assert normalize_url("serial:/dev/ttyUSB0:921600") == ("/dev/ttyUSB0", 921600)
+    assert normalize_url("/dev/ttyAMA0", 115200) == ("/dev/ttyAMA0", 115200)
+    with pytest.raises(UserError):
+        normalize_url("udpin:host")
+    with pytest.raises(UserError):
+        normalize_url("http://x")
