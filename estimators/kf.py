@@ -56,6 +56,14 @@ from estimators.measurements import Attitude, Imu, LoadAngle, Measurement, Posit
 from estimators.vehicle import Vehicle
 
 _DEG = math.pi / 180.0
+#: command input columns of each block (horizontal x and y, heading, height) and its slice of the output
+_INPUT = (slice(0, 2), slice(2, 3), slice(3, 4))
+_SLICE = (slice(0, 16), slice(16, 18), slice(18, 21))
+_UPDATES = {
+    "state": LinearBlock.update_state,
+    "states": LinearBlock.update_states,
+    "row": LinearBlock.update_row,
+}
 
 STATE_NAMES: tuple[str, ...] = (
     "p_x", "v_x", "alpha_y", "alpha_y_rate", "n_x", "n_x_rate", "d_x", "b_x",
@@ -165,17 +173,17 @@ class KalmanEstimator:
             blk.discrete(1.0 / rate_hz)
         self._acc_row = np.zeros(8)
         self._acc_row[[ID, IB]] = 1.0
-        self._gate1 = float(chi2.ppf(tn.gate_probability, 1))
-        self._gate2 = float(chi2.ppf(tn.gate_probability, 2))
-        self._r = {
-            "pos_xy": tn.sigma_pos_xy**2, "pos_z": tn.sigma_pos_z**2, "vel_xy": tn.sigma_vel_xy**2,
-            "vel_z": tn.sigma_vel_z**2, "tilt": tn.sigma_tilt**2, "yaw": tn.sigma_yaw**2,
-            "rate": tn.sigma_rate**2, "acc": tn.sigma_acc**2, "load": tn.sigma_load**2,
+        self._gate = {dof: float(chi2.ppf(tn.gate_probability, dof)) for dof in (1, 2, 4)}
+        self._r: dict[str, object] = {
+            "pv_xy": (tn.sigma_pos_xy**2, tn.sigma_vel_xy**2), "pv_z": (tn.sigma_pos_z**2, tn.sigma_vel_z**2),
+            "tilt": (tn.sigma_tilt**2, tn.sigma_rate**2), "yaw": (tn.sigma_yaw**2, tn.sigma_rate**2),
+            "acc": tn.sigma_acc**2, "load": tn.sigma_load**2,
         }
         self._stats = {
             "accepted": 0, "late_dropped": 0, "out_of_order": 0, "gated_outliers": 0, "nan_rejected": 0,
             "gate_reopened": 0, "commands_rejected": 0, "not_used": 0, "nonfinite_resets": 0,
         }
+        self._out_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._initialized = False
 
     # --------------------------------------------------------------------------------------------------------
@@ -190,24 +198,22 @@ class KalmanEstimator:
             hx[i, :6] = planar_state(k, chain)
         sd = (tn.prior_pos, tn.prior_vel, tn.prior_swing, tn.prior_swing_rate, tn.prior_tilt, tn.prior_tilt_rate,
               tn.prior_d, tn.prior_bias)
-        hp = np.tile(np.diag(np.square(sd)), (2, 1, 1))
+        hp = np.diag(np.square(sd))
         yx = np.array([[guess.psi, guess.psi_rate]])
-        yp = np.diag([tn.prior_psi**2, tn.prior_psi_rate**2])[None]
+        yp = np.diag([tn.prior_psi**2, tn.prior_psi_rate**2])
         zx = np.array([[guess.z, guess.z_rate, 0.0]])
-        zp = np.diag([tn.prior_z**2, tn.prior_z_rate**2, tn.prior_dz**2])[None]
-        # core (delayed horizon) per block: [time, mean, covariance]
+        zp = np.diag([tn.prior_z**2, tn.prior_z_rate**2, tn.prior_dz**2])
+        # delayed state per block: [time, means (batch, n), shared covariance (n, n)]
         self._core = [[float(t), hx, hp], [float(t), yx, yp], [float(t), zx, zp]]
-        self._out = [hx.copy(), yx.copy(), zx.copy()]
+        # output: the 21 means in STATE_NAMES order
+        self._out = np.concatenate((hx.ravel(), yx.ravel(), zx.ravel()))
         self._t_out = float(t)
         self._pending: list[tuple[float, int, Measurement]] = []
         self._seq = 0
         self._latest_t = -math.inf
         # command history: (time, (horizontal input (2,), heading input (1,), height input (1,)))
-        self._cmds: list[tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray]]] = [
-            (float(t), (np.zeros(2), np.zeros(1), np.zeros(1)))
-        ]
-        self._gated_run = {"pos": 0, "vel": 0, "z": 0, "vz": 0, "tilt": 0, "tilt_rate": 0, "psi": 0, "psi_rate": 0,
-                           "acc": 0, "load": 0}
+        self._cmds: list[tuple[float, np.ndarray]] = [(float(t), np.zeros(4))]
+        self._gated_run = {"pos": 0, "z": 0, "tilt": 0, "psi": 0, "acc": 0, "load": 0}
         self._fz = self._g
         self._last_good = guess
         self._initialized = True
@@ -245,22 +251,25 @@ class KalmanEstimator:
             self._stats["commands_rejected"] += 1
             return
         t = max(float(t), self._t_out)
-        hx, yx = self._out[0], self._out[1]
-        psi = float(yx[0, 0])
+        out = self._out
+        psi = float(out[16])
         cp, sp = math.cos(psi), math.sin(psi)
         ip, it, iy = self._inv_inertia
         ttheta, tphi = torque[1] * it, -torque[0] * ip  # accelerations of (theta, -phi)
-        w_h = np.array((cp * ttheta - sp * tphi, sp * ttheta + cp * tphi))
         # tilt of the output estimate (world tilt -> theta, phi) for the vertical thrust component
-        nx, ny = float(hx[0, IN]), float(hx[1, IN])
+        nx, ny = float(out[IN]), float(out[8 + IN])
         theta, phi = nx * cp + ny * sp, nx * sp - ny * cp
-        w_z = np.array((thrust * math.cos(phi) * math.cos(theta) / self._Mt - self._g,))
-        w_y = np.array((torque[2] * iy,))
+        w = np.array((
+            cp * ttheta - sp * tphi,
+            sp * ttheta + cp * tphi,
+            torque[2] * iy,
+            thrust * math.cos(phi) * math.cos(theta) / self._Mt - self._g,
+        ))
         cmds = self._cmds
-        if cmds and cmds[-1][0] >= t:
-            cmds[-1] = (cmds[-1][0], (w_h, w_y, w_z))
+        if cmds[-1][0] >= t:
+            cmds[-1] = (cmds[-1][0], w)
         else:
-            cmds.append((t, (w_h, w_y, w_z)))
+            cmds.append((t, w))
 
     # --------------------------------------------------------------------------------------------------------
     def estimate(self, t: float) -> ControlState:
@@ -291,10 +300,10 @@ class KalmanEstimator:
         """Covariance (21 x 21, ordering :data:`STATE_NAMES`) of the filter state at the last output time."""
         out = np.zeros((21, 21))
         ps = self._output_covariances()
-        out[0:8, 0:8] = ps[0][0]
-        out[8:16, 8:16] = ps[0][1]
-        out[16:18, 16:18] = ps[1][0]
-        out[18:21, 18:21] = ps[2][0]
+        out[0:8, 0:8] = ps[0]
+        out[8:16, 8:16] = ps[0]
+        out[16:18, 16:18] = ps[1]
+        out[18:21, 18:21] = ps[2]
         return out
 
     def nees(self, t: float, truth: ControlState) -> float:
@@ -303,17 +312,17 @@ class KalmanEstimator:
         if t > self._t_out:
             self.estimate(t)
         ps = self._output_covariances()
-        total = 0.0
-        hx = self._out[0]
-        for i, chain in enumerate((truth.fx, truth.fy)):
-            e = hx[i, :6] - np.array(planar_state(self.k, chain))
-            total += float(e @ np.linalg.solve(ps[0][i][:6, :6], e))
-        yx = self._out[1]
-        e = np.array((wrap_angle(float(yx[0, 0]) - truth.psi), float(yx[0, 1]) - truth.psi_rate))
-        total += float(e @ np.linalg.solve(ps[1][0], e))
-        zx = self._out[2]
-        e = np.array((float(zx[0, 0]) - truth.z, float(zx[0, 1]) - truth.z_rate))
-        total += float(e @ np.linalg.solve(ps[2][0][:2, :2], e))
+        out = self._out.tolist()
+        e = np.array((
+            *(a - b for a, b in zip(out[0:6], planar_state(self.k, truth.fx))),
+            *(a - b for a, b in zip(out[8:14], planar_state(self.k, truth.fy))),
+        )).reshape(2, 6)
+        hp = ps[0][:6, :6]
+        total = float(np.sum(e * np.linalg.solve(hp, e.T).T))
+        e = np.array((wrap_angle(out[16] - truth.psi), out[17] - truth.psi_rate))
+        total += float(e @ np.linalg.solve(ps[1], e))
+        e = np.array((out[18] - truth.z, out[19] - truth.z_rate))
+        total += float(e @ np.linalg.solve(ps[2][:2, :2], e))
         return total
 
     def stats(self) -> dict[str, int]:
@@ -347,7 +356,7 @@ class KalmanEstimator:
         while True:
             end = cmds[j + 1][0] if j + 1 < len(cmds) and cmds[j + 1][0] < t else t
             if end > tc:
-                x = blk.predict_mean(x, end - tc, cmds[j][1][bi])
+                x = blk.predict_mean(x, end - tc, cmds[j][1][_INPUT[bi]])
                 tc = end
             if end >= t:
                 break
@@ -373,41 +382,57 @@ class KalmanEstimator:
         while True:
             end = cmds[j + 1][0] if j + 1 < len(cmds) and cmds[j + 1][0] < t else t
             if end > tc:
-                w = cmds[j][1]
-                h = end - tc
-                out[0] = self._hb.predict_mean(out[0], h, w[0])
-                out[1] = self._yb.predict_mean(out[1], h, w[1])
-                out[2] = self._zb.predict_mean(out[2], h, w[2])
+                phi_t, gamma_t = self._output_model(end - tc)
+                out = out @ phi_t + cmds[j][1] @ gamma_t
                 tc = end
             if end >= t:
                 break
             j += 1
+        self._out = out
         self._t_out = t
+
+    def _output_model(self, h: float) -> tuple[np.ndarray, np.ndarray]:
+        """Block-diagonal (Phi^T (21, 21), Gamma^T (4, 21)) of all 21 output means for a step ``h`` (cached)."""
+        key = round(h * 1e7)
+        mdl = self._out_cache.get(key)
+        if mdl is None:
+            phi_t = np.zeros((21, 21))
+            gamma_t = np.zeros((4, 21))
+            dh, dy, dz = (blk.discrete(h) for blk in self._blocks)
+            phi_t[0:8, 0:8] = dh.phi_t
+            phi_t[8:16, 8:16] = dh.phi_t
+            phi_t[16:18, 16:18] = dy.phi_t
+            phi_t[18:21, 18:21] = dz.phi_t
+            gamma_t[0, 0:8] = dh.gamma
+            gamma_t[1, 8:16] = dh.gamma
+            gamma_t[2, 16:18] = dy.gamma
+            gamma_t[3, 18:21] = dz.gamma
+            if len(self._out_cache) >= 4096:
+                self._out_cache.clear()
+            mdl = self._out_cache[key] = (phi_t, gamma_t)
+        return mdl
 
     def _correct_output(self, bi: int, dx: np.ndarray) -> None:
         """Carry a correction of the delayed state of block ``bi`` to the output."""
         h = self._t_out - self._core[bi][0]
         if h > 0.0:
             dx = dx @ self._blocks[bi].discrete(h).phi_t
-        self._out[bi] += dx
+        self._out[_SLICE[bi]] += dx.ravel()
 
-    def _output_covariances(self) -> list[list[np.ndarray]]:
+    def _output_covariances(self) -> list[np.ndarray]:
         res = []
         for bi, blk in enumerate(self._blocks):
             t0, _, p = self._core[bi]
             h = self._t_out - t0
-            pp = blk.predict_cov(p, h) if h > 0.0 else p
-            res.append([pp[i] for i in range(blk.batch)])
+            res.append(blk.predict_cov(p, h) if h > 0.0 else p)
         return res
 
-    def _update(self, bi: int, name: str, i: int | None, z: np.ndarray, r: float, gate: float,
-                row: np.ndarray | None = None) -> bool:
-        """One gated update of block ``bi``; returns False when gated."""
+    def _update(self, bi: int, name: str, kind: str, arg: object, z: tuple[float, ...], r: object, dof: int) -> bool:
+        """One gated update of block ``bi`` (``kind``: "state" (arg = index), "states" (arg = index pair) or
+        "row" (arg = measurement row)); returns False when gated."""
         core = self._core[bi]
-        if row is None:
-            _, dx = LinearBlock.update_unit(core[1], core[2], i, z, r, gate)
-        else:
-            _, dx = LinearBlock.update_row(core[1], core[2], row, z, r, gate)
+        fn = _UPDATES[kind]
+        dx = fn(core[1], core[2], arg, z, r, self._gate[dof])
         if dx is None:
             run = self._gated_run[name] + 1
             if run <= self.tuning.gate_reopen:
@@ -415,11 +440,9 @@ class KalmanEstimator:
                 return False
             # the stream has been rejected too long: the filter, not the sensor, is wrong; accept it
             self._stats["gate_reopened"] += 1
-            if row is None:
-                _, dx = LinearBlock.update_unit(core[1], core[2], i, z, r, math.inf)
-            else:
-                _, dx = LinearBlock.update_row(core[1], core[2], row, z, r, math.inf)
-            assert dx is not None
+            dx = fn(core[1], core[2], arg, z, r, math.inf)
+            if dx is None:
+                return False
         self._gated_run[name] = 0
         self._correct_output(bi, dx)
         return True
@@ -427,15 +450,12 @@ class KalmanEstimator:
     def _fuse(self, m: Measurement) -> None:
         t = m.t
         r = self._r
-        g1, g2 = self._gate1, self._gate2
         ok = True
         if isinstance(m, PositionVelocity):
             self._advance_core(0, t)
             self._advance_core(2, t)
-            ok &= self._update(0, "pos", IP, np.array((m.x, m.y)), r["pos_xy"], g2)
-            ok &= self._update(0, "vel", IV, np.array((m.vx, m.vy)), r["vel_xy"], g2)
-            ok &= self._update(2, "z", 0, np.array((m.z,)), r["pos_z"], g1)
-            ok &= self._update(2, "vz", 1, np.array((m.vz,)), r["vel_z"], g1)
+            ok &= self._update(0, "pos", "states", (IP, IV), (m.x, m.vx, m.y, m.vy), r["pv_xy"], 4)
+            ok &= self._update(2, "z", "states", (0, 1), (m.z, m.vz), r["pv_z"], 2)
         elif isinstance(m, Attitude):
             self._advance_core(0, t)
             self._advance_core(1, t)
@@ -450,12 +470,9 @@ class KalmanEstimator:
             theta_rate = cf * m.q - sf * m.r
             psi_rate = (sf * m.q + cf * m.r) / ct
             nx, ny, nxd, nyd = world_tilt(phi, theta, psi, phi_rate, theta_rate, psi_rate)
-            ycore = self._core[1][1]
-            psi_est = float(ycore[0, 0])
-            ok &= self._update(0, "tilt", IN, np.array((nx, ny)), r["tilt"], g2)
-            ok &= self._update(0, "tilt_rate", IND, np.array((nxd, nyd)), r["rate"], g2)
-            ok &= self._update(1, "psi", 0, np.array((psi_est + wrap_angle(psi - psi_est),)), r["yaw"], g1)
-            ok &= self._update(1, "psi_rate", 1, np.array((psi_rate,)), r["rate"], g1)
+            psi_est = float(self._core[1][1][0, 0])
+            ok &= self._update(0, "tilt", "states", (IN, IND), (nx, nxd, ny, nyd), r["tilt"], 4)
+            ok &= self._update(1, "psi", "states", (0, 1), (psi_est + wrap_angle(psi - psi_est), psi_rate), r["yaw"], 2)
         elif isinstance(m, Imu):
             self._advance_core(0, t)
             a = self.tuning.accel_gain_filter
@@ -464,14 +481,14 @@ class KalmanEstimator:
             gain = self._m_over_M * self._fz
             psi = float(self._core[1][1][0, 0])
             cp, sp = math.cos(psi), math.sin(psi)
-            z = np.array((cp * m.ax - sp * m.ay, sp * m.ax + cp * m.ay))
             row = self._acc_row
             row[IA] = gain
             row[IN] = gain
-            ok &= self._update(0, "acc", None, z, r["acc"], g2, row=row)
+            z = (cp * m.ax - sp * m.ay, sp * m.ax + cp * m.ay)
+            ok &= self._update(0, "acc", "row", row, z, r["acc"], 2)
         elif isinstance(m, LoadAngle):
             self._advance_core(0, t)
-            ok &= self._update(0, "load", IA, np.array((m.alpha_y, m.alpha_x)), r["load"], g2)
+            ok &= self._update(0, "load", "state", IA, (m.alpha_y, m.alpha_x), r["load"], 2)
         else:  # pragma: no cover - the type union is closed
             self._stats["not_used"] += 1
             return
@@ -481,10 +498,10 @@ class KalmanEstimator:
 
     def _control_state(self) -> ControlState:
         k = self.k
-        hx = self._out[0]
-        ax_, ay_ = hx[0].tolist(), hx[1].tolist()
-        psi, psi_rate = self._out[1][0].tolist()
-        z, z_rate, _ = self._out[2][0].tolist()
+        out = self._out.tolist()
+        ax_, ay_ = out[0:8], out[8:16]
+        psi, psi_rate = out[16], out[17]
+        z, z_rate = out[18], out[19]
         cp, sp = math.cos(psi), math.sin(psi)
         nx, nxd, ny, nyd = ax_[IN], ax_[IND], ay_[IN], ay_[IND]
         theta = nx * cp + ny * sp

@@ -36,6 +36,9 @@ class LinearBlock:
     """
 
     _CACHE_LIMIT = 4096
+    #: discretizations shared by every block with the same model (a run builds one filter per process, but
+    #: tests and benchmarks build many): model bytes -> step key -> Discrete
+    _SHARED: dict[bytes, dict[int, Discrete]] = {}
 
     def __init__(self, a: np.ndarray, b: Sequence[float], q_c: Sequence[float], batch: int) -> None:
         self.a = np.asarray(a, dtype=float)
@@ -43,7 +46,10 @@ class LinearBlock:
         self.b = np.asarray(b, dtype=float).reshape(self.n)
         self.g = np.diag(np.sqrt(np.asarray(q_c, dtype=float)))
         self.batch = batch
-        self._cache: dict[int, Discrete] = {}
+        model = self.a.tobytes() + self.b.tobytes() + self.g.tobytes()
+        if len(self._SHARED) > 64:
+            self._SHARED.clear()
+        self._cache: dict[int, Discrete] = self._SHARED.setdefault(model, {})
 
     def discrete(self, h: float) -> Discrete:
         """The discretized model for a step of ``h`` seconds (>= 0), cached per 0.1 microsecond."""
@@ -72,50 +78,81 @@ class LinearBlock:
         return Discrete(phi, np.ascontiguousarray(phi.T), gamma, q)
 
     # Kalman operations on caller-owned arrays ---------------------------------------------------------------
+    # The channels of a batch share one model, one measurement row and one noise, so they share one covariance
+    # P (n, n); only their means x (batch, n) differ.
     def predict_mean(self, x: np.ndarray, h: float, w: np.ndarray) -> np.ndarray:
         """Mean after ``h`` s with the input ``w`` (batch,) held: ``x Phi^T + w gamma`` (new array)."""
         d = self.discrete(h)
-        return x @ d.phi_t + w[:, None] * d.gamma
+        return x @ d.phi_t + np.multiply.outer(w, d.gamma)
 
     def predict_cov(self, p: np.ndarray, h: float) -> np.ndarray:
         """Covariance after ``h`` s: ``Phi P Phi^T + Q`` (new array)."""
         d = self.discrete(h)
-        return d.phi @ p @ d.phi_t + d.q
+        p = d.phi @ p @ d.phi_t + d.q
+        return 0.5 * (p + p.T)
 
     @staticmethod
-    def update_unit(
-        x: np.ndarray, p: np.ndarray, i: int, z: np.ndarray, r: float, gate: float
-    ) -> tuple[float, np.ndarray | None]:
-        """Measure state ``i`` of every channel: ``z`` (batch,) with variance ``r``, in place.
+    def update_states(
+        x: np.ndarray, p: np.ndarray, idx: tuple[int, int], z: tuple[float, ...], r: tuple[float, float],
+        gate: float,
+    ) -> np.ndarray | None:
+        """Measure the two states ``idx`` of every channel directly, in place.
 
-        The channels' innovations are gated together: if their summed NIS exceeds ``gate`` nothing changes.
-        Returns (NIS, the state correction (batch, n) or None when gated or not finite).
+        z: the measured values, channel-major (``z[2 c + j]`` is state ``idx[j]`` of channel ``c``);
+        r: the variances of the two (independent) measurement noises. All innovations are gated together
+        (their NIS summed over the channels, compared with ``gate``); when gated nothing changes.
+        Returns the state correction (batch, n), or None when gated.
         """
-        ph = p[:, :, i].copy()
-        s = ph[:, i] + r
-        y = z - x[:, i]
-        nis = float(np.sum(y * y / s))
-        if not nis <= gate:
-            return nis, None
-        k = ph / s[:, None]
-        dx = k * y[:, None]
+        i, j = idx
+        ph = p[:, idx]  # (n, 2) copy
+        s11 = float(ph[i, 0]) + r[0]
+        s12 = float(ph[i, 1])
+        s22 = float(ph[j, 1]) + r[1]
+        det = s11 * s22 - s12 * s12
+        if not det > 0.0:
+            return None
+        s_inv = np.array(((s22 / det, -s12 / det), (-s12 / det, s11 / det)))
+        y = np.subtract(z, x[:, idx].ravel()).reshape(-1, 2)
+        ys = y @ s_inv
+        if not float(np.vdot(ys, y)) <= gate:
+            return None
+        dx = ys @ ph.T
         x += dx
-        p -= k[:, :, None] * ph[:, None, :]
-        return nis, dx
+        p -= (ph @ s_inv) @ ph.T  # symmetric up to rounding; predict_cov re-symmetrizes
+        return dx
+
+    @staticmethod
+    def update_state(
+        x: np.ndarray, p: np.ndarray, i: int, z: tuple[float, ...], r: float, gate: float
+    ) -> np.ndarray | None:
+        """Measure state ``i`` of every channel, ``z`` (one value per channel) with variance ``r``, in place.
+
+        The channels' innovations are gated together: if their summed normalized squares exceed ``gate``
+        nothing changes. Returns the state correction (batch, n), or None when gated.
+        """
+        ph = p[:, i].copy()
+        s = float(ph[i]) + r
+        y = np.subtract(z, x[:, i])
+        if not (s > 0.0 and float(y @ y) <= gate * s):
+            return None
+        k = ph / s
+        dx = np.multiply.outer(y, k)
+        x += dx
+        p -= np.multiply.outer(ph, ph) * (1.0 / s)  # exactly symmetric
+        return dx
 
     @staticmethod
     def update_row(
-        x: np.ndarray, p: np.ndarray, h: np.ndarray, z: np.ndarray, r: float, gate: float
-    ) -> tuple[float, np.ndarray | None]:
-        """Measure ``h . x`` of every channel (``h`` (n,), the same row for all), like :meth:`update_unit`."""
+        x: np.ndarray, p: np.ndarray, h: np.ndarray, z: tuple[float, ...], r: float, gate: float
+    ) -> np.ndarray | None:
+        """Measure ``h . x`` of every channel (``h`` (n,)), like :meth:`update_unit`."""
         ph = p @ h
-        s = ph @ h + r
-        y = z - x @ h
-        nis = float(np.sum(y * y / s))
-        if not nis <= gate:
-            return nis, None
-        k = ph / s[:, None]
-        dx = k * y[:, None]
+        s = float(ph @ h) + r
+        y = np.subtract(z, x @ h)
+        if not float(y @ y) <= gate * s:
+            return None
+        k = ph / s
+        dx = np.multiply.outer(y, k)
         x += dx
-        p -= k[:, :, None] * ph[:, None, :]
-        return nis, dx
+        p -= np.multiply.outer(ph, ph) * (1.0 / s)  # exactly symmetric
+        return dx

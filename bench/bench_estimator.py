@@ -1,0 +1,96 @@
+"""Cost of the Kalman estimator per control tick, both modes (with and without the cable-angle sensor).
+
+A hover run with an initial swing and small sinusoidal commands is simulated once (plant + ``px4-typical``
+sensors); its measurement stream and commands are then replayed through a fresh estimator, timing for each
+control tick everything the estimator does in that tick: ``push`` of the measurements delivered since the
+previous tick, ``estimate(t)`` and ``push_command``. Prints median and p99 in microseconds.
+
+Usage: ``python bench/bench_estimator.py [--rate HZ] [--seconds S] [--sensors PRESET]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+
+import numpy as np
+
+from estimators.cable import cable_from_planar, planar_swing
+from estimators.control_state import ControlState
+from estimators.factory import make_estimator
+from estimators.flatness import FlatConstants, flat_chain, flat_constants, world_tilt
+from estimators.vehicle import Vehicle
+from sim_bridge import dynamics
+from sim_bridge.sensors import SensorSuite
+
+
+def _truth(x: list[float], k: FlatConstants) -> ControlState:
+    ay, ax, ayd, axd = planar_swing(x[12], x[13], x[14], x[15], x[16], x[17])
+    nx, ny, nxd, nyd = world_tilt(x[6], x[7], x[8], x[9], x[10], x[11])
+    return ControlState(flat_chain(k, x[0], x[3], ay, ayd, nx, nxd), flat_chain(k, x[1], x[4], ax, axd, ny, nyd),
+                        x[2], x[5], x[6], x[7], x[8], x[9], x[10], x[11], ax, ay, axd, ayd)
+
+
+def record(rate: float, seconds: float, preset: str, seed: int = 0) -> tuple[list, ControlState]:
+    """Simulate once; return per tick (t, measurements delivered before the tick, command) and the start."""
+    v = Vehicle()
+    p = dynamics.plant_params(v)
+    k = flat_constants(v)
+    r, rd = cable_from_planar(0.15, 0.08)
+    x = dynamics.make_state(cable=r, cable_rate=rd)
+    sensors = SensorSuite(preset, v, np.random.default_rng(seed), load_sensor=True)
+    plant_dt = 0.001
+    sub = max(1, round(1.0 / (rate * plant_dt)))
+    ticks = []
+    pending: list = []
+    for i in range(int(seconds * rate)):
+        t = i * sub * plant_dt
+        thrust = v.hover_thrust + 0.3 * math.sin(2.0 * t)
+        tau = (0.002 * math.sin(3.0 * t), 0.002 * math.cos(2.5 * t), 0.001 * math.sin(t))
+        ticks.append((t, pending, thrust, tau))
+        pending = []
+        u = dynamics.make_input(thrust, tau)
+        for j in range(sub):
+            x = dynamics.rk4_step(x, u, p, plant_dt)
+            pending.extend(sensors.sample(t + (j + 1) * plant_dt, x, u))
+    return ticks, _truth(dynamics.make_state(cable=r, cable_rate=rd), k)
+
+
+def time_ticks(ticks: list, start: ControlState, rate: float, load_sensor: bool) -> np.ndarray:
+    """Seconds spent in the estimator at each tick."""
+    est = make_estimator("kf", Vehicle(), load_sensor=load_sensor, rate_hz=rate)
+    est.initialize(0.0, start)
+    out = np.empty(len(ticks))
+    clock = time.perf_counter
+    for i, (t, ms, thrust, tau) in enumerate(ticks):
+        t0 = clock()
+        for m in ms:
+            est.push(m)
+        est.estimate(t)
+        est.push_command(t, thrust, tau)
+        out[i] = clock() - t0
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rate", type=float, default=200.0, help="control rate, Hz (default 200)")
+    ap.add_argument("--seconds", type=float, default=20.0, help="simulated seconds (default 20)")
+    ap.add_argument("--sensors", default="px4-typical", help="sensor preset (default px4-typical)")
+    args = ap.parse_args(argv)
+    ticks, start = record(args.rate, args.seconds, args.sensors)
+    n_meas = sum(len(t[1]) for t in ticks)
+    print(f"estimator cost per control tick: {len(ticks)} ticks at {args.rate:g} Hz, sensors {args.sensors}, "
+          f"{n_meas / len(ticks):.2f} measurements per tick")
+    for load_sensor in (True, False):
+        time_ticks(ticks[: len(ticks) // 4], start, args.rate, load_sensor)  # warm-up (caches, allocator)
+        dt = time_ticks(ticks, start, args.rate, load_sensor) * 1e6
+        mode = "with cable-angle sensor" if load_sensor else "sensorless             "
+        print(f"  {mode}: median {np.median(dt):6.1f} us   p99 {np.percentile(dt, 99):6.1f} us   "
+              f"max {dt.max():7.1f} us")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
