@@ -1,0 +1,269 @@
+"""The emulator's clock: the plant stepped at 1 kHz with the autopilot's inner loops, paced in real time or in
+lockstep with the offboard controller's setpoints.
+
+Real time (``realtime``): simulation time follows the wall clock; the loop steps the plant up to "now", sends
+the telemetry that came due, and waits for datagrams until the next step is due.
+
+Lockstep (``lockstep``): the plant advances exactly ``period`` seconds of simulation time for every setpoint
+received (SET_ATTITUDE_TARGET, SET_POSITION_TARGET_LOCAL_NED, SET_ACTUATOR_CONTROL_TARGET addressed to us):
+
+1. the setpoint is applied (if the mode uses it),
+2. the plant steps ``period`` (``round(period / plant_dt)`` steps), sending every telemetry message that comes
+   due during those steps with its own simulation timestamp,
+3. a SYSTEM_TIME message marks the end of the step (its ``time_boot_ms`` is the new simulation time),
+4. the emulator waits for the next setpoint.
+
+So a controller reads telemetry up to the SYSTEM_TIME marker, computes, and sends its next setpoint. When no
+setpoint has arrived for ``grace`` seconds of wall time, the emulator free-runs in real time (so arming, mode
+changes and clients that do not stream still work) until the next setpoint arrives. With link faults enabled, a
+setpoint dropped or delayed by the injected faults still advances the clock (the handshake is the simulation's
+clock, not part of the emulated link).
+
+Ground: the vehicle rests on the ground plane z = 0 (model NWU) on landing gear tall enough for the load to hang
+free; while on the ground and the collective thrust does not exceed the total weight the state is held at rest.
+A descent through z = 0 is a touchdown: the vehicle is put at rest there, level, with the cable hanging.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import select
+import time
+from typing import Any
+
+from estimators.vehicle import Vehicle
+from sim_bridge.autopilot import SETPOINT_IDS, Autopilot
+from sim_bridge.dynamics import make_state, plant_params, rk4_step
+from sim_bridge.link import Link
+
+log = logging.getLogger(__name__)
+
+
+def _has_setpoint_frame(data: bytes) -> int:
+    """Count frames in a datagram whose header says setpoint (used for lockstep when faults delay packets)."""
+    n = 0
+    i = 0
+    L = len(data)
+    while i < L:
+        b = data[i]
+        if b == 0xFD and i + 10 <= L:
+            mid = data[i + 7] | (data[i + 8] << 8) | (data[i + 9] << 16)
+            if mid in SETPOINT_IDS:
+                n += 1
+            i += 12 + data[i + 1] + (13 if data[i + 2] & 1 else 0)
+        elif b == 0xFE and i + 6 <= L:
+            if data[i + 5] in SETPOINT_IDS:
+                n += 1
+            i += 8 + data[i + 1]
+        else:
+            i += 1
+    return n
+
+
+class Emulator:
+    """Plant + autopilot + link, driven by the real-time or the lockstep clock."""
+
+    def __init__(
+        self,
+        autopilot: Autopilot,
+        link: Link,
+        vehicle: Vehicle,
+        *,
+        clock: str = "realtime",
+        period: float = 0.01,
+        grace: float = 0.05,
+        plant_dt: float = 0.001,
+        attitude_model: str = "rigid",
+    ) -> None:
+        if clock not in ("realtime", "lockstep"):
+            raise ValueError(f"clock must be 'realtime' or 'lockstep', got {clock!r}")
+        self.ap = autopilot
+        self.link = link
+        self.p = plant_params(vehicle, attitude_model)
+        self.clock = clock
+        self.h = plant_dt
+        self.h_us = round(plant_dt * 1e6)
+        self.steps_per_period = max(1, round(period / plant_dt))
+        self.grace = grace
+        self.x = make_state()
+        self.u = [0.0] * 13
+        self.on_ground = True
+        self.t_us = 0
+        self.weight = vehicle.total_mass * vehicle.gravity
+        self._stop = False
+        self.steps = 0
+        self.lockstep_steps = 0
+        self.nonfinite_resets = 0
+        self.wall_start = 0.0
+        self.wall_end = 0.0
+        autopilot.lockstep_marker = clock == "lockstep"
+
+    def stop(self) -> None:
+        """Ask the loop to end (thread-safe enough: a flag read once per iteration)."""
+        self._stop = True
+
+    # ---------------------------------------------------------------- plant
+    def step(self, n: int) -> None:
+        """Advance the plant ``n`` steps with the inner loops; telemetry that comes due is sent."""
+        ap = self.ap
+        link = self.link
+        faulty = link._faulty
+        x, u, p, h = self.x, self.u, self.p, self.h
+        weight = self.weight
+        for _ in range(n):
+            thrust, tx, ty, tz = ap.control(x, self.on_ground)
+            u[0], u[1], u[2], u[3] = thrust, tx, ty, tz
+            if self.on_ground:
+                if thrust > weight * 1.0001:
+                    self.on_ground = False
+                    x = rk4_step(x, u, p, h)
+            else:
+                x = rk4_step(x, u, p, h)
+                if x[2] < 0.0:
+                    x = self._touchdown(x)
+            s = x[0] + x[3] + x[6] + x[9] + x[12] + x[15] + x[2] + x[5] + x[8] + x[11]
+            if s - s != 0.0:
+                x = self._nonfinite()
+            self.t_us += self.h_us
+            if faulty:
+                link.now = self.t_us * 1e-6
+                link.flush_due()
+                for data, ep, addr in link.due_incoming():
+                    ap.handle_datagram(data, ep, addr)
+            ap.after_step(self.t_us, x, u, self.on_ground)
+        self.x = x
+        self.steps += n
+
+    def _touchdown(self, x: list[float]) -> list[float]:
+        self.on_ground = True
+        return make_state((x[0], x[1], 0.0), euler=(0.0, 0.0, x[8]))
+
+    def _nonfinite(self) -> list[float]:
+        self.nonfinite_resets += 1
+        self.on_ground = True
+        self.ap.armed = False
+        self.ap.statustext(0, "EMERGENCY: plant state not finite, reset")
+        return make_state()
+
+    # ---------------------------------------------------------------- input
+    def _receive(self) -> int:
+        """Read and handle all waiting datagrams; returns the number of setpoints accepted."""
+        link = self.link
+        link.now = self.t_us * 1e-6
+        n = 0
+        for data, ep, addr in link.poll():
+            n += self.ap.handle_datagram(data, ep, addr)
+        if link._faulty:
+            for data, ep, addr in link.due_incoming():
+                n += self.ap.handle_datagram(data, ep, addr)
+        return n
+
+    def _receive_faulty_lockstep(self) -> int:
+        """Lockstep with faults: count setpoint frames at reception, even if delayed or dropped."""
+        link = self.link
+        link.now = self.t_us * 1e-6
+        n = 0
+        f = link.faults
+        for ep in link.endpoints:
+            while True:
+                try:
+                    data, addr = ep.sock.recvfrom(65535)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except OSError:
+                    break
+                link.rx.datagrams += 1
+                n += _has_setpoint_frame(data)
+                if f.loss_in > 0.0 and link.rng.random() < f.loss_in:
+                    link.rx.dropped_in += 1
+                    continue
+                rel = link.now + f.latency + (link.rng.random() * f.jitter if f.jitter > 0.0 else 0.0)
+                rel = max(rel, link._last_in)
+                link._last_in = rel
+                link._in.append((rel, data, ep, addr))
+        for data, ep, addr in link.due_incoming():
+            self.ap.handle_datagram(data, ep, addr)
+        return n
+
+    # ---------------------------------------------------------------- loop
+    def run(self, duration: float | None = None) -> None:
+        """Run until ``duration`` seconds of simulation time (None: until :meth:`stop`)."""
+        end_us = None if duration is None else int(duration * 1e6)
+        socks = self.link.fileno_list()
+        self.wall_start = time.monotonic()
+        # realtime anchor: wall time that corresponds to sim time t_anchor
+        anchor_wall = self.wall_start
+        anchor_t = 0
+        streaming = False
+        last_sp_wall = 0.0
+        lockstep = self.clock == "lockstep"
+        faulty = self.link._faulty
+        h_us = self.h_us
+        try:
+            while not self._stop and (end_us is None or self.t_us < end_us):
+                if lockstep and streaming:
+                    wait = self.grace - (time.monotonic() - last_sp_wall)
+                    if wait <= 0.0:
+                        streaming = False
+                        anchor_wall, anchor_t = time.monotonic(), self.t_us
+                        continue
+                    r, _, _ = select.select(socks, [], [], wait)
+                    if not r:
+                        continue
+                    n = self._receive_faulty_lockstep() if faulty else self._receive()
+                    if n:
+                        last_sp_wall = time.monotonic()
+                        self._lockstep_advance(n, end_us)
+                    continue
+                # real-time pacing (realtime clock, or lockstep free-run)
+                now = time.monotonic()
+                target = anchor_t + int((now - anchor_wall) * 1e6)
+                behind = (target - self.t_us) // h_us
+                if behind > 0:
+                    if end_us is not None:
+                        behind = min(behind, (end_us - self.t_us + h_us - 1) // h_us)
+                    self.step(min(behind, 200))
+                    if behind > 2000:  # we cannot keep up: let the clock slip rather than spiral
+                        anchor_wall, anchor_t = now, self.t_us
+                next_wall = anchor_wall + (self.t_us + h_us - anchor_t) * 1e-6
+                wait = max(0.0, min(next_wall - time.monotonic(), 0.002))
+                r, _, _ = select.select(socks, [], [], wait)
+                if r:
+                    n = self._receive_faulty_lockstep() if (faulty and lockstep) else self._receive()
+                    if lockstep and n:
+                        streaming = True
+                        last_sp_wall = time.monotonic()
+                        self._lockstep_advance(n, end_us)
+                elif faulty:
+                    self.link.now = self.t_us * 1e-6
+        finally:
+            self.wall_end = time.monotonic()
+
+    def _lockstep_advance(self, n: int, end_us: int | None) -> None:
+        steps = n * self.steps_per_period
+        if end_us is not None:
+            steps = min(steps, max(0, (end_us - self.t_us) // self.h_us))
+        self.step(steps)
+        self.lockstep_steps += n
+        self.ap.send_step_marker()
+
+    def summary(self) -> dict[str, Any]:
+        """Clock figures for the final report."""
+        wall = max(self.wall_end - self.wall_start, 1e-9)
+        return {
+            "clock": self.clock,
+            "sim_time_s": self.t_us / 1e6,
+            "wall_time_s": wall,
+            "realtime_factor": (self.t_us / 1e6) / wall,
+            "plant_steps": self.steps,
+            "lockstep_handshakes": self.lockstep_steps,
+            "nonfinite_resets": self.nonfinite_resets,
+            "on_ground": self.on_ground,
+            "altitude_m": self.x[2],
+        }
+
+
+def finite_state(x: list[float]) -> bool:
+    """True if every state component is finite."""
+    return all(math.isfinite(v) for v in x)

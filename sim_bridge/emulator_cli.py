@@ -1,0 +1,163 @@
+"""``slung emulate``: run the MAVLink autopilot emulator (PX4 or ArduPilot flavour) around the plant.
+
+Examples::
+
+    slung emulate                                   # PX4, real time, sends to udp 127.0.0.1:14540
+    slung emulate --flavor ardupilot --lockstep --lockstep-period 0.01
+    slung emulate --mavlink udpout:127.0.0.1:14540 --mavlink udpin:127.0.0.1:14550   # controller + GCS
+    slung emulate --tlog flight.tlog --duration 60 --summary summary.json
+
+At the end (``--duration`` reached, SIGINT or SIGTERM) a one-line JSON summary with the link counters is
+printed on stdout (and written to ``--summary`` if given).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import signal
+import sys
+from typing import Any
+
+from estimators.errors import UserError
+from estimators.vehicle import load_vehicle
+
+log = logging.getLogger(__name__)
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the ``emulate`` options."""
+    parser.add_argument("--flavor", choices=("px4", "ardupilot"), default="px4", help="autopilot to emulate")
+    parser.add_argument("--mavlink", action="append", metavar="URL",
+                        help="udpout:HOST:PORT (send there, answer whoever talks) or udpin:HOST:PORT (listen); "
+                             "repeatable; default udpout:127.0.0.1:14540 like PX4 SITL's offboard link")
+    clock = parser.add_mutually_exclusive_group()
+    clock.add_argument("--realtime", dest="clock", action="store_const", const="realtime",
+                       help="pace the simulation by the wall clock (default)")
+    clock.add_argument("--lockstep", dest="clock", action="store_const", const="lockstep",
+                       help="advance one control period per setpoint received (free-runs when none arrive)")
+    parser.set_defaults(clock="realtime")
+    parser.add_argument("--lockstep-period", type=float, default=0.01, metavar="S",
+                        help="simulation time advanced per setpoint in lockstep, s (default 0.01)")
+    parser.add_argument("--lockstep-grace", type=float, default=0.05, metavar="S",
+                        help="wall time without setpoints after which lockstep free-runs, s (default 0.05)")
+    parser.add_argument("--vehicle", metavar="FILE", help="vehicle TOML (default: the paper's Table 1 vehicle)")
+    parser.add_argument("--attitude-model", choices=("rigid", "paper"), default="rigid",
+                        help="plant rotation model (default rigid body)")
+    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds of simulation time")
+    parser.add_argument("--tlog", metavar="FILE", help="write every packet sent and received to a .tlog")
+    parser.add_argument("--summary", metavar="FILE", help="also write the final JSON summary to FILE")
+    parser.add_argument("--sysid", type=int, default=1, help="autopilot system id (default 1)")
+    parser.add_argument("--load-sysid", type=int, default=2, help="system id of the load (default 2)")
+    parser.add_argument("--signing-key", metavar="HEX|@FILE",
+                        help="MAVLink 2 signing key: 64 hex digits, or @FILE holding them")
+    parser.add_argument("--loss-in", type=float, default=0.0, help="incoming packet loss probability")
+    parser.add_argument("--loss-out", type=float, default=0.0, help="outgoing packet loss probability")
+    parser.add_argument("--latency", type=float, default=0.0, metavar="S", help="one-way link latency, s")
+    parser.add_argument("--jitter", type=float, default=0.0, metavar="S", help="extra uniform delay 0..S, s")
+    parser.add_argument("--fault-seed", type=int, default=0, help="seed of the link-fault generator")
+    parser.add_argument("--noise", type=float, default=0.0,
+                        help="telemetry noise scale (0 = the plant truth, 1 = typical EKF/IMU noise)")
+    parser.add_argument("--noise-seed", type=int, default=1, help="seed of the telemetry noise")
+    parser.add_argument("--est-ready", type=float, default=1.5, metavar="S",
+                        help="simulation time after boot until the estimator has a position (default 1.5 s)")
+
+
+def _signing_key(text: str | None) -> bytes | None:
+    if text is None:
+        return None
+    if text.startswith("@"):
+        try:
+            with open(text[1:], encoding="ascii") as f:
+                text = f.read().strip()
+        except OSError as exc:
+            raise UserError(f"cannot read signing key file {text[1:]}: {exc.strerror}") from None
+    try:
+        key = bytes.fromhex(text)
+    except ValueError:
+        raise UserError("--signing-key must be 64 hex digits (32 bytes)") from None
+    if len(key) != 32:
+        raise UserError(f"--signing-key must be 32 bytes (64 hex digits), got {len(key)} bytes")
+    return key
+
+
+def build(args: argparse.Namespace) -> Any:
+    """Create (emulator, autopilot, link) from parsed arguments; UserError on bad input."""
+    import numpy as np
+
+    from sim_bridge.autopilot import Autopilot
+    from sim_bridge.emulator import Emulator
+    from sim_bridge.link import Link, LinkFaults
+
+    if not (0.001 <= args.lockstep_period <= 1.0):
+        raise UserError(f"--lockstep-period must be in [0.001, 1] s, got {args.lockstep_period!r}")
+    if not (0.001 <= args.lockstep_grace <= 10.0):
+        raise UserError(f"--lockstep-grace must be in [0.001, 10] s, got {args.lockstep_grace!r}")
+    if args.duration is not None and not (args.duration > 0):
+        raise UserError(f"--duration must be > 0 s, got {args.duration!r}")
+    if not (1 <= args.sysid <= 255 and 1 <= args.load_sysid <= 255 and args.sysid != args.load_sysid):
+        raise UserError("--sysid and --load-sysid must be different numbers in 1..255")
+    if not (args.noise >= 0.0 and args.noise <= 100.0):
+        raise UserError(f"--noise must be in [0, 100], got {args.noise!r}")
+    if not (0.0 <= args.est_ready <= 60.0):
+        raise UserError(f"--est-ready must be in [0, 60] s, got {args.est_ready!r}")
+    vehicle = load_vehicle(args.vehicle)
+    key = _signing_key(args.signing_key)
+    faults = LinkFaults(args.loss_in, args.loss_out, args.latency, args.jitter, args.fault_seed)
+    link = Link(args.mavlink or [], faults, args.tlog)
+    ap = Autopilot(args.flavor, vehicle, link, sysid=args.sysid, load_sysid=args.load_sysid, signing_key=key,
+                   noise=args.noise, rng=np.random.default_rng(args.noise_seed), est_ready_s=args.est_ready,
+                   attitude_model=args.attitude_model)
+    emu = Emulator(ap, link, vehicle, clock=args.clock, period=args.lockstep_period, grace=args.lockstep_grace,
+                   attitude_model=args.attitude_model)
+    return emu, ap, link
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the emulator until --duration, SIGINT or SIGTERM; print the JSON summary."""
+    emu, ap, link = build(args)
+    print(f"slung emulate: {args.flavor} ({args.clock}) on "
+          + ", ".join(f"{ep.url} (local port {ep.local_port})" for ep in link.endpoints), file=sys.stderr, flush=True)
+
+    def _stop(signum: int, frame: Any) -> None:
+        emu.stop()
+
+    old = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(ValueError):  # ValueError: not the main thread
+            old[sig] = signal.signal(sig, _stop)
+    try:
+        emu.run(args.duration)
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+        summary = {**ap.summary(), **emu.summary(), "link": link.summary()}
+        link.close()
+    text = json.dumps(summary, sort_keys=True)
+    print(text, flush=True)
+    if args.summary:
+        try:
+            with open(args.summary, "w", encoding="utf-8") as f:
+                f.write(text + "\n")
+        except OSError as exc:
+            raise UserError(f"cannot write summary {args.summary}: {exc.strerror}") from None
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m sim_bridge.emulator_cli``: the same as ``slung emulate``."""
+    parser = argparse.ArgumentParser(prog="slung emulate", description=__doc__.splitlines()[0])
+    configure(parser)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING)
+    try:
+        return run(args)
+    except UserError as exc:
+        print(f"slung emulate: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

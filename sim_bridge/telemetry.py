@@ -1,0 +1,311 @@
+"""Telemetry generation: the one place where the plant state becomes MAVLink telemetry messages.
+
+The emulated autopilot's estimate is the plant truth (optionally with seeded white noise, ``noise`` > 0 scales
+typical EKF / IMU noise levels). Every model-frame quantity is converted to MAVLink's NED / FRD with
+``estimators.frames`` only.
+
+Wire conventions (see ``docs/emulator.md``):
+
+- local frame: NED with origin at home (where the vehicle boots), ``z = -altitude``;
+- global position: flat-earth around the home point ``HOME`` (lat, lon in degrees, altitude AMSL in m);
+- ODOMETRY: frame_id LOCAL_NED, child_frame_id BODY_FRD, velocity in body FRD (as PX4 sends it);
+- load-angle sensor: ``DEBUG_VECT`` named ``"LOADANG"``: x = swing angle in the North-Down plane
+  ``atan2(r_N, r_D)`` (positive with the load north of the vehicle), y = swing angle in the East-Down plane
+  ``atan2(r_E, r_D)`` (positive with the load east), z = total swing angle from the vertical, all rad, where
+  ``r`` is the unit cable vector from the vehicle to the load in NED; time_usec = simulation time;
+- the load as its own system: GLOBAL_POSITION_INT of the load (sysid 2, compid 35) like ArduPilot's SITL.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimators.frames import (
+    euler_to_quaternion,
+    model_body_to_frd,
+    model_euler_to_ned,
+    model_quaternion_to_ned,
+    model_to_ned_vector,
+)
+from sim_bridge.airframe import body_rates
+from sim_bridge.dynamics import PlantParams, derivative
+
+EARTH_RADIUS = 6378137.0  # m (WGS-84 equatorial), flat-earth offsets only
+
+
+@dataclass(frozen=True)
+class Home:
+    """Home point: latitude and longitude in degrees, altitude AMSL in m (PX4 SITL's default location)."""
+
+    lat: float = 47.397742
+    lon: float = 8.545594
+    alt: float = 488.0
+
+
+@dataclass
+class Snapshot:
+    """Everything the telemetry messages report at one instant, in MAVLink conventions (NED / FRD, SI)."""
+
+    t_us: int
+    roll: float
+    pitch: float
+    yaw: float
+    q: tuple[float, float, float, float]
+    p: float
+    qr: float
+    r: float
+    pos: tuple[float, float, float]
+    vel: tuple[float, float, float]
+    acc: tuple[float, float, float]  # specific force, body FRD, m/s^2
+    lat: int
+    lon: int
+    alt_mm: int
+    rel_alt_mm: int
+    load_pos: tuple[float, float, float]
+    load_vel: tuple[float, float, float]
+    load_lat: int
+    load_lon: int
+    load_alt_mm: int
+    load_rel_alt_mm: int
+    swing_n: float
+    swing_e: float
+    swing: float
+
+
+def _rot_t_times(phi: float, theta: float, psi: float, v: Sequence[float]) -> tuple[float, float, float]:
+    """R^T v for R = Rz(psi) Ry(theta) Rx(phi) (world -> body), model frame."""
+    sf, cf = math.sin(phi), math.cos(phi)
+    st, ct = math.sin(theta), math.cos(theta)
+    sp, cp = math.sin(psi), math.cos(psi)
+    r00, r01, r02 = cp * ct, cp * st * sf - sp * cf, cp * st * cf + sp * sf
+    r10, r11, r12 = sp * ct, sp * st * sf + cp * cf, sp * st * cf - cp * sf
+    r20, r21, r22 = -st, ct * sf, ct * cf
+    x, y, z = v
+    return (r00 * x + r10 * y + r20 * z, r01 * x + r11 * y + r21 * z, r02 * x + r12 * y + r22 * z)
+
+
+class TelemetrySource:
+    """Builds :class:`Snapshot` objects from the plant state (truth + optional seeded noise)."""
+
+    def __init__(self, params: PlantParams, home: Home, noise: float = 0.0,
+                 rng: np.random.Generator | None = None) -> None:
+        self.p = params
+        self.home = home
+        self.noise = noise
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self._cos_lat = math.cos(math.radians(home.lat))
+
+    def _latlon(self, n: float, e: float, d: float) -> tuple[int, int, int, int]:
+        lat = self.home.lat + math.degrees(n / EARTH_RADIUS)
+        lon = self.home.lon + math.degrees(e / (EARTH_RADIUS * self._cos_lat))
+        return (round(lat * 1e7), round(lon * 1e7), round((self.home.alt - d) * 1000.0),
+                round(-d * 1000.0))
+
+    def snapshot(self, t_us: int, x: Sequence[float], u: Sequence[float]) -> Snapshot:
+        """Telemetry values at simulation time ``t_us`` (µs) for state ``x`` and input ``u`` (model frame)."""
+        phi, theta, psi = x[6], x[7], x[8]
+        wx, wy, wz = body_rates(phi, theta, x[9], x[10], x[11])
+        dx = derivative(0.0, x, u, self.p)
+        g = self.p.g
+        f_body = _rot_t_times(phi, theta, psi, (dx[3], dx[4], dx[5] + g))
+        pos = model_to_ned_vector(x[0], x[1], x[2])
+        vel = model_to_ned_vector(x[3], x[4], x[5])
+        l = self.p.l
+        load_pos = model_to_ned_vector(x[0] + l * x[12], x[1] + l * x[13], x[2] + l * x[14])
+        load_vel = model_to_ned_vector(x[3] + l * x[15], x[4] + l * x[16], x[5] + l * x[17])
+        rn, re, rd = model_to_ned_vector(x[12], x[13], x[14])
+        if self.noise > 0.0:
+            k = self.noise
+            nz = self.rng.standard_normal(17)
+            phi += k * 0.005 * nz[0]
+            theta += k * 0.005 * nz[1]
+            psi += k * 0.01 * nz[2]
+            wx, wy, wz = wx + k * 0.01 * nz[3], wy + k * 0.01 * nz[4], wz + k * 0.01 * nz[5]
+            f_body = (f_body[0] + k * 0.2 * nz[6], f_body[1] + k * 0.2 * nz[7], f_body[2] + k * 0.2 * nz[8])
+            pos = (pos[0] + k * 0.02 * nz[9], pos[1] + k * 0.02 * nz[10], pos[2] + k * 0.03 * nz[11])
+            vel = (vel[0] + k * 0.03 * nz[12], vel[1] + k * 0.03 * nz[13], vel[2] + k * 0.03 * nz[14])
+            swing_noise = (k * 0.009 * nz[15], k * 0.009 * nz[16])
+        else:
+            swing_noise = (0.0, 0.0)
+        roll, pitch, yaw = model_euler_to_ned(phi, theta, psi)
+        q = model_quaternion_to_ned(*euler_to_quaternion(phi, theta, psi))
+        p_, q_, r_ = model_body_to_frd(wx, wy, wz)
+        acc = model_body_to_frd(*f_body)
+        lat, lon, alt, rel = self._latlon(*pos)
+        llat, llon, lalt, lrel = self._latlon(*load_pos)
+        return Snapshot(
+            t_us, roll, pitch, yaw, q, p_, q_, r_, pos, vel, acc, lat, lon, alt, rel,
+            load_pos, load_vel, llat, llon, lalt, lrel,
+            math.atan2(rn, rd) + swing_noise[0], math.atan2(re, rd) + swing_noise[1],
+            math.atan2(math.hypot(rn, re), rd),
+        )
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Message builders: (mav, snapshot, ctx) -> message. ``ctx`` is the autopilot (for mode, targets, counters).
+
+_NAN21 = [float("nan")] + [0.0] * 20
+
+
+def msg_attitude(mav, s: Snapshot, ctx):
+    """ATTITUDE: Euler angles (rad, NED/FRD) and body rates (rad/s, FRD)."""
+    return mav.attitude_encode(s.t_us // 1000, s.roll, s.pitch, s.yaw, s.p, s.qr, s.r)
+
+
+def msg_attitude_quaternion(mav, s: Snapshot, ctx):
+    """ATTITUDE_QUATERNION: q (FRD body to NED), body rates FRD."""
+    w, x, y, z = s.q
+    return mav.attitude_quaternion_encode(s.t_us // 1000, w, x, y, z, s.p, s.qr, s.r, [0.0, 0.0, 0.0, 0.0])
+
+
+def msg_local_position_ned(mav, s: Snapshot, ctx):
+    """LOCAL_POSITION_NED relative to home."""
+    return mav.local_position_ned_encode(s.t_us // 1000, *s.pos, *s.vel)
+
+
+def msg_odometry(mav, s: Snapshot, ctx):
+    """ODOMETRY: pose in LOCAL_NED, velocity and rates in BODY_FRD."""
+    vb = _ned_to_body(s.q, s.vel)
+    return mav.odometry_encode(s.t_us, 1, 12, s.pos[0], s.pos[1], s.pos[2], list(s.q), vb[0], vb[1], vb[2],
+                               s.p, s.qr, s.r, _NAN21, _NAN21, 0, 0, 100)
+
+
+def _ned_to_body(q: tuple[float, float, float, float], v: Sequence[float]) -> tuple[float, float, float]:
+    """Rotate a NED vector into body FRD with the attitude quaternion q (FRD -> NED)."""
+    w, x, y, z = q
+    # R^T v with R from q
+    r00 = 1 - 2 * (y * y + z * z)
+    r01 = 2 * (x * y - w * z)
+    r02 = 2 * (x * z + w * y)
+    r10 = 2 * (x * y + w * z)
+    r11 = 1 - 2 * (x * x + z * z)
+    r12 = 2 * (y * z - w * x)
+    r20 = 2 * (x * z - w * y)
+    r21 = 2 * (y * z + w * x)
+    r22 = 1 - 2 * (x * x + y * y)
+    a, b, c = v
+    return (r00 * a + r10 * b + r20 * c, r01 * a + r11 * b + r21 * c, r02 * a + r12 * b + r22 * c)
+
+
+def msg_highres_imu(mav, s: Snapshot, ctx):
+    """HIGHRES_IMU: specific force (m/s^2, FRD), gyro (rad/s, FRD), pressure altitude."""
+    alt = ctx.home.alt - s.pos[2]
+    pressure = 1013.25 * (1.0 - 2.25577e-5 * alt) ** 5.25588
+    return mav.highres_imu_encode(s.t_us, s.acc[0], s.acc[1], s.acc[2], s.p, s.qr, s.r, 0.21, 0.0, 0.42,
+                                  pressure, 0.0, alt, 25.0, 0x1FFF, 0)
+
+
+def _mg(v: float) -> int:
+    return max(-32768, min(32767, round(v / 9.80665 * 1000.0)))
+
+
+def _mrad(v: float) -> int:
+    return max(-32768, min(32767, round(v * 1000.0)))
+
+
+def msg_scaled_imu(mav, s: Snapshot, ctx):
+    """SCALED_IMU: accel in mG, gyro in mrad/s (FRD)."""
+    return mav.scaled_imu_encode(s.t_us // 1000, _mg(s.acc[0]), _mg(s.acc[1]), _mg(s.acc[2]),
+                                 _mrad(s.p), _mrad(s.qr), _mrad(s.r), 210, 0, 420)
+
+
+def msg_raw_imu(mav, s: Snapshot, ctx):
+    """RAW_IMU: as ArduPilot sends it, the same scaling as SCALED_IMU (mG, mrad/s)."""
+    return mav.raw_imu_encode(s.t_us, _mg(s.acc[0]), _mg(s.acc[1]), _mg(s.acc[2]),
+                              _mrad(s.p), _mrad(s.qr), _mrad(s.r), 210, 0, 420)
+
+
+def msg_global_position_int(mav, s: Snapshot, ctx):
+    """GLOBAL_POSITION_INT of the vehicle (degE7, mm, cm/s NED, cdeg)."""
+    hdg = round(math.degrees(s.yaw) * 100.0) % 36000
+    return mav.global_position_int_encode(s.t_us // 1000, s.lat, s.lon, s.alt_mm, s.rel_alt_mm,
+                                          _cms(s.vel[0]), _cms(s.vel[1]), _cms(s.vel[2]), hdg)
+
+
+def _cms(v: float) -> int:
+    return max(-32768, min(32767, round(v * 100.0)))
+
+
+def msg_load_global_position_int(mav, s: Snapshot, ctx):
+    """GLOBAL_POSITION_INT of the load, sent by the load's own system (sysid 2)."""
+    return mav.global_position_int_encode(s.t_us // 1000, s.load_lat, s.load_lon, s.load_alt_mm, s.load_rel_alt_mm,
+                                          _cms(s.load_vel[0]), _cms(s.load_vel[1]), _cms(s.load_vel[2]), 65535)
+
+
+def msg_load_attitude(mav, s: Snapshot, ctx):
+    """The zero ATTITUDE ArduPilot's slung-payload SITL sends for the payload."""
+    return mav.attitude_encode(s.t_us // 1000, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+def msg_debug_vect(mav, s: Snapshot, ctx):
+    """Load-angle sensor: DEBUG_VECT "LOADANG" (x north-down angle, y east-down angle, z total, rad)."""
+    return mav.debug_vect_encode(b"LOADANG", s.t_us, s.swing_n, s.swing_e, s.swing)
+
+
+def msg_attitude_target(mav, s: Snapshot, ctx):
+    """ATTITUDE_TARGET: what the inner loop tracks (q NED, rates FRD, normalized thrust)."""
+    q, rates, thrust, mask = ctx.attitude_target_wire()
+    return mav.attitude_target_encode(s.t_us // 1000, mask, list(q), rates[0], rates[1], rates[2], thrust)
+
+
+def msg_vfr_hud(mav, s: Snapshot, ctx):
+    """VFR_HUD for ground stations."""
+    gs = math.hypot(s.vel[0], s.vel[1])
+    hdg = round(math.degrees(s.yaw)) % 360
+    return mav.vfr_hud_encode(gs, gs, hdg, round(100 * ctx.throttle_fraction()), ctx.home.alt - s.pos[2],
+                              -s.vel[2])
+
+
+def msg_system_time(mav, s: Snapshot, ctx):
+    """SYSTEM_TIME: unix time (µs, from the simulation clock plus the boot epoch) and time_boot_ms."""
+    return mav.system_time_encode(ctx.boot_unix_us + s.t_us, s.t_us // 1000)
+
+
+def msg_home_position(mav, s: Snapshot, ctx):
+    """HOME_POSITION: where the vehicle booted (local origin)."""
+    h = ctx.home
+    return mav.home_position_encode(round(h.lat * 1e7), round(h.lon * 1e7), round(h.alt * 1000),
+                                    0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, s.t_us)
+
+
+def msg_sys_status(mav, s: Snapshot, ctx):
+    """SYS_STATUS with the link counters in the error fields (see docs/emulator.md)."""
+    return ctx.sys_status(mav)
+
+
+def msg_extended_sys_state(mav, s: Snapshot, ctx):
+    """EXTENDED_SYS_STATE: landed state (1 on ground, 2 in air, 3 taking off, 4 landing)."""
+    return mav.extended_sys_state_encode(0, ctx.landed_state())
+
+
+def msg_heartbeat(mav, s: Snapshot, ctx):
+    """HEARTBEAT of the autopilot."""
+    return ctx.heartbeat(mav)
+
+
+#: stream name -> builder; the name is the MAVLink message name (its id is looked up in the dialect).
+BUILDERS = {
+    "HEARTBEAT": msg_heartbeat,
+    "SYS_STATUS": msg_sys_status,
+    "EXTENDED_SYS_STATE": msg_extended_sys_state,
+    "ATTITUDE": msg_attitude,
+    "ATTITUDE_QUATERNION": msg_attitude_quaternion,
+    "HIGHRES_IMU": msg_highres_imu,
+    "SCALED_IMU": msg_scaled_imu,
+    "RAW_IMU": msg_raw_imu,
+    "GLOBAL_POSITION_INT": msg_global_position_int,
+    "LOCAL_POSITION_NED": msg_local_position_ned,
+    "ODOMETRY": msg_odometry,
+    "ATTITUDE_TARGET": msg_attitude_target,
+    "VFR_HUD": msg_vfr_hud,
+    "DEBUG_VECT": msg_debug_vect,
+    "SYSTEM_TIME": msg_system_time,
+    "HOME_POSITION": msg_home_position,
+}
+
+#: messages that need a position estimate (not sent before the estimator is ready, as on PX4 / ArduPilot)
+NEEDS_POSITION = frozenset({"GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "ODOMETRY", "HOME_POSITION"})
