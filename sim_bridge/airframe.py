@@ -54,33 +54,38 @@ class Mixer:
     def allocate(self, thrust: float, tx: float, ty: float, tz: float) -> list[float]:
         """Motor thrust commands (N) for a wrench, limited to [0, motor_thrust_max] with roll/pitch priority."""
         fmax = self.fmax
-        base = min(max(thrust, 0.0), 4.0 * fmax) * 0.25
+        base = 0.25 * (thrust if thrust < 4.0 * fmax else 4.0 * fmax)
+        if base < 0.0:
+            base = 0.0
         kx = tx / (4.0 * self.a)
         ky = ty / (4.0 * self.a)
         kz = tz / (4.0 * self.c)
-        rp = [kx * _SX[i] + ky * _SY[i] for i in range(4)]
-        lo, hi = min(rp), max(rp)
+        # roll/pitch parts of motors 0..3 (signs _SX, _SY)
+        r0, r1, r2, r3 = kx - ky, -kx - ky, -kx + ky, kx + ky
+        lo = min(r0, r1, r2, r3)
+        hi = max(r0, r1, r2, r3)
         span = hi - lo
-        if span > fmax:  # roll/pitch alone cannot fit: scale them down around the middle
+        if span > fmax:  # roll/pitch alone cannot fit: scale them down
             s = fmax / span
-            rp = [v * s for v in rp]
+            r0, r1, r2, r3 = r0 * s, r1 * s, r2 * s, r3 * s
             lo, hi = lo * s, hi * s
         if base + hi > fmax:  # top: lower the collective
             base = fmax - hi
         if base + lo < 0.0:  # bottom: keep the collective, scale roll/pitch
-            s = base / -lo if lo < 0.0 else 0.0
-            rp = [v * s for v in rp]
-        f = [base + rp[i] for i in range(4)]
-        # yaw: largest k in [0, 1] keeping every motor in range
+            s = base / -lo
+            r0, r1, r2, r3 = r0 * s, r1 * s, r2 * s, r3 * s
+        f0, f1, f2, f3 = base + r0, base + r1, base + r2, base + r3
+        # yaw (signs _SZ = +, -, +, -): largest k in [0, 1] keeping every motor in range
         k = 1.0
-        for i in range(4):
-            y = kz * _SZ[i]
-            if y > 0.0 and f[i] + y > fmax:
-                k = min(k, (fmax - f[i]) / y)
-            elif y < 0.0 and f[i] + y < 0.0:
-                k = min(k, f[i] / -y)
-        k = max(k, 0.0)
-        out = [min(max(f[i] + k * kz * _SZ[i], 0.0), fmax) for i in range(4)]
+        if kz > 0.0:
+            k = min(k, (fmax - f0) / kz, (fmax - f2) / kz, f1 / kz, f3 / kz)
+        elif kz < 0.0:
+            k = min(k, f0 / -kz, f2 / -kz, (fmax - f1) / -kz, (fmax - f3) / -kz)
+        if k < 0.0:
+            k = 0.0
+        y = k * kz
+        out = [f0 + y, f1 - y, f2 + y, f3 - y]
+        out = [0.0 if v < 0.0 else (fmax if v > fmax else v) for v in out]
         self.cmd = out
         return out
 
@@ -242,22 +247,32 @@ class AttitudeController:
     def rates_to_torque(
         self, rate_sp: tuple[float, float, float], w: tuple[float, float, float], integrate: bool
     ) -> tuple[float, float, float]:
-        """Body torques (N m, FLU) from the rate setpoint and the measured body rates (rad/s, FLU)."""
+        """Body torques (N m, FLU) from the rate setpoint and the measured body rates (rad/s, FLU).
+
+        Runs every ``self.dt`` seconds (the rate-loop period). Output saturated at the axis' maximum torque.
+        """
         self.rate_sp = rate_sp
         dt = self.dt
-        out = [0.0, 0.0, 0.0]
-        for k in range(3):
-            e = rate_sp[k] - w[k]
-            if integrate:
-                v = self.integ[k] + self.rate_i[k] * e * dt
-                lim = self.i_limit
-                self.integ[k] = min(max(v, -lim), lim)
-            dw = (w[k] - self.prev_w[k]) / dt
-            u = self.rate_p[k] * e + self.integ[k] - self.rate_d[k] * dw
-            u = min(max(u, -1.0), 1.0)
-            out[k] = u * self.tmax[k]
-        self.prev_w = [w[0], w[1], w[2]]
-        return (out[0], out[1], out[2])
+        kp, ki, kd, integ, prev, tm = self.rate_p, self.rate_i, self.rate_d, self.integ, self.prev_w, self.tmax
+        w0, w1, w2 = w
+        e0, e1, e2 = rate_sp[0] - w0, rate_sp[1] - w1, rate_sp[2] - w2
+        if integrate:
+            lim = self.i_limit
+            i0 = integ[0] + ki[0] * e0 * dt
+            i1 = integ[1] + ki[1] * e1 * dt
+            i2 = integ[2] + ki[2] * e2 * dt
+            integ[0] = lim if i0 > lim else (-lim if i0 < -lim else i0)
+            integ[1] = lim if i1 > lim else (-lim if i1 < -lim else i1)
+            integ[2] = lim if i2 > lim else (-lim if i2 < -lim else i2)
+        inv = 1.0 / dt
+        u0 = kp[0] * e0 + integ[0] - kd[0] * (w0 - prev[0]) * inv
+        u1 = kp[1] * e1 + integ[1] - kd[1] * (w1 - prev[1]) * inv
+        u2 = kp[2] * e2 + integ[2] - kd[2] * (w2 - prev[2]) * inv
+        self.prev_w = [w0, w1, w2]
+        u0 = 1.0 if u0 > 1.0 else (-1.0 if u0 < -1.0 else u0)
+        u1 = 1.0 if u1 > 1.0 else (-1.0 if u1 < -1.0 else u1)
+        u2 = 1.0 if u2 > 1.0 else (-1.0 if u2 < -1.0 else u2)
+        return (u0 * tm[0], u1 * tm[1], u2 * tm[2])
 
 
 class PositionController:

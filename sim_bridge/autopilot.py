@@ -129,7 +129,7 @@ class Autopilot:
 
         # airframe
         self.mixer = Mixer(vehicle, dt)
-        self.att = AttitudeController(vehicle, dt)
+        self.att = AttitudeController(vehicle, 2 * dt)  # rate loop at half the plant rate (500 Hz at 1 kHz)
         self.pos = PositionController(vehicle.gravity)
         self.weight = vehicle.total_mass * vehicle.gravity
         self.tmax = vehicle.thrust_max
@@ -746,14 +746,16 @@ class Autopilot:
             mixer.cmd = [0.0, 0.0, 0.0, 0.0]
             self.thrust_cmd = 0.0
             return mixer.step()
-        if self.k & 3 == 0:
+        k = self.k
+        if k & 3 == 0:
             self._outer(x, on_ground)
-        if self.direct_tau is not None:
-            tx, ty, tz = self.direct_tau
-        else:
-            w = body_rates(x[6], x[7], x[9], x[10], x[11])
-            tx, ty, tz = self.att.rates_to_torque(self.rate_sp, w, not on_ground)
-        mixer.allocate(self.thrust_cmd, tx, ty, tz)
+        if k & 1 == 0:  # rate loop + mixer at 500 Hz (PX4's IMU_GYRO_RATEMAX default is 400 Hz)
+            if self.direct_tau is not None:
+                tx, ty, tz = self.direct_tau
+            else:
+                w = body_rates(x[6], x[7], x[9], x[10], x[11])
+                tx, ty, tz = self.att.rates_to_torque(self.rate_sp, w, not on_ground)
+            mixer.allocate(self.thrust_cmd, tx, ty, tz)
         return mixer.step()
 
     def _q_now(self, x: Sequence[float]) -> tuple[float, float, float, float]:

@@ -1,0 +1,196 @@
+"""Helpers for the emulator tests and benchmark: start ``slung emulate`` as a subprocess on a free loopback port,
+talk to it with pymavlink, and a minimal hold controller (test client only; the real controller is offboard/)."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil
+
+from estimators.frames import euler_to_quaternion
+from estimators.vehicle import Vehicle
+
+ROOT = Path(__file__).resolve().parents[1]
+PX4_OFFBOARD = (1, 6, 0)  # DO_SET_MODE params for PX4 OFFBOARD
+MAV_CMD_ARM = 400
+MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+
+
+def free_port() -> int:
+    """A UDP port on 127.0.0.1 that was free a moment ago."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+class Emu:
+    """``python -m sim_bridge.emulator_cli`` sending to a pymavlink client listening on a free port."""
+
+    def __init__(self, *args: str, client_sysid: int = 255, client_compid: int = 190,
+                 signing_key: bytes | None = None, sign_outgoing: bool = True) -> None:
+        self.port = free_port()
+        self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=client_sysid,
+                                               source_component=client_compid, dialect="ardupilotmega")
+        if signing_key is not None:
+            self.conn.setup_signing(signing_key, sign_outgoing=sign_outgoing)
+        cmd = [sys.executable, "-m", "sim_bridge.emulator_cli", "--mavlink", f"udpout:127.0.0.1:{self.port}",
+               *args]
+        self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.summary: dict[str, Any] | None = None
+
+    @property
+    def mav(self) -> Any:
+        """The pymavlink MAVLink object of the client."""
+        return self.conn.mav
+
+    def wait_heartbeat(self, timeout: float = 10.0) -> Any:
+        """First HEARTBEAT from the autopilot (sysid 1, compid 1)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            m = self.conn.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
+            if m is not None and m.get_srcSystem() == 1 and m.get_srcComponent() == 1:
+                return m
+        raise TimeoutError("no heartbeat from the emulator")
+
+    def recv(self, types: str | list[str], timeout: float = 2.0, cond: Any = None, sysid: int = 1) -> Any:
+        """Next message of the given type(s) from ``sysid`` (and satisfying ``cond``), or None on timeout."""
+        end = time.monotonic() + timeout
+        while True:
+            left = end - time.monotonic()
+            if left <= 0:
+                return None
+            m = self.conn.recv_match(type=types, blocking=True, timeout=left)
+            if m is None:
+                return None
+            if m.get_srcSystem() == sysid and (cond is None or cond(m)):
+                return m
+
+    def command(self, cmd: int, *params: float, target: int = 1, timeout: float = 2.0) -> Any:
+        """COMMAND_LONG and its COMMAND_ACK (or None)."""
+        p = [*params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0][:7]
+        self.mav.command_long_send(target, 1, cmd, 0, *p)
+        return self.recv("COMMAND_ACK", timeout, cond=lambda m: m.command == cmd)
+
+    def wait_ready(self, timeout: float = 10.0) -> None:
+        """Until the estimator is ready (LOCAL_POSITION_NED flows)."""
+        if self.recv("LOCAL_POSITION_NED", timeout) is None:
+            raise TimeoutError("no LOCAL_POSITION_NED")
+
+    def stop(self, timeout: float = 10.0) -> dict[str, Any]:
+        """SIGTERM the emulator and return its JSON summary."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+        out, err = self.proc.communicate(timeout=timeout)
+        self.conn.close()
+        lines = [ln for ln in out.splitlines() if ln.startswith("{")]
+        if not lines:
+            raise RuntimeError(f"no summary from the emulator; stderr: {err[-2000:]}")
+        self.summary = json.loads(lines[-1])
+        return self.summary
+
+    def __enter__(self) -> Emu:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+
+def attitude_target(mav: Any, roll: float, pitch: float, yaw: float, thrust: float, t_ms: int = 0,
+                    target: int = 1) -> None:
+    """SET_ATTITUDE_TARGET, type_mask 7 (attitude + thrust), Euler angles in rad (NED/FRD)."""
+    q = euler_to_quaternion(roll, pitch, yaw)
+    mav.set_attitude_target_send(t_ms, target, 1, 7, list(q), 0.0, 0.0, 0.0, thrust)
+
+
+class HoldController:
+    """PD hold of a NED position with attitude + normalized thrust output (small-angle, test client only)."""
+
+    def __init__(self, vehicle: Vehicle, target_ned: tuple[float, float, float], kp_xy: float = 1.0,
+                 kd_xy: float = 1.8, kp_z: float = 4.0, kd_z: float = 4.0) -> None:
+        self.hover = vehicle.hover_thrust_normalized
+        self.g = vehicle.gravity
+        self.target = target_ned
+        self.k = (kp_xy, kd_xy, kp_z, kd_z)
+
+    def update(self, pos: tuple[float, float, float], vel: tuple[float, float, float]) -> tuple[float, float, float]:
+        """(roll rad, pitch rad, normalized thrust) for position and velocity in NED."""
+        kp, kd, kpz, kdz = self.k
+        ax = kp * (self.target[0] - pos[0]) - kd * vel[0]
+        ay = kp * (self.target[1] - pos[1]) - kd * vel[1]
+        az = kpz * (self.target[2] - pos[2]) - kdz * vel[2]
+        g = self.g
+        lim = 0.35
+        pitch = max(-lim, min(lim, -ax / g))
+        roll = max(-lim, min(lim, ay / g))
+        thrust = self.hover * (g - az) / g / (math.cos(roll) * math.cos(pitch))
+        return roll, pitch, max(0.0, min(1.0, thrust))
+
+
+def fly_lockstep_hold(emu: Emu, seconds: float, vehicle: Vehicle, altitude: float = 2.0,
+                      period: float = 0.01) -> dict[str, Any]:
+    """Arm, enter offboard and hold ``altitude`` for ``seconds`` of simulation time in lockstep.
+
+    Returns wall time of the lockstep part, final position (NED) and the number of handshakes.
+    """
+    emu.wait_heartbeat()
+    emu.wait_ready()
+    mav = emu.mav
+    iv = int(period * 1e6)
+    for msgid in (32, 30):  # LOCAL_POSITION_NED, ATTITUDE at the control rate
+        emu.command(MAV_CMD_SET_MESSAGE_INTERVAL, msgid, iv)
+    ctrl = HoldController(vehicle, (0.0, 0.0, -altitude))
+    pos, vel = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+    sim_ms = 0
+    start_ms = None
+    armed = offboard = False
+    steps = 0
+    t0 = time.monotonic()
+    max_err = 0.0
+    while True:
+        roll, pitch, thrust = ctrl.update(pos, vel)
+        if not armed:
+            thrust = 0.0
+        attitude_target(mav, roll, pitch, 0.0, thrust, sim_ms)
+        steps += 1
+        # read until the end-of-step marker
+        while True:
+            m = emu.conn.recv_match(blocking=True, timeout=5.0)
+            if m is None:
+                raise TimeoutError("lockstep: no end-of-step marker")
+            t = m.get_type()
+            if t == "LOCAL_POSITION_NED":
+                pos, vel = (m.x, m.y, m.z), (m.vx, m.vy, m.vz)
+            elif t == "SYSTEM_TIME" and m.get_srcSystem() == 1:
+                sim_ms = m.time_boot_ms
+                break
+        if not armed and steps == 20:
+            mav.command_long_send(1, 1, MAV_CMD_ARM, 0, 1, 0, 0, 0, 0, 0, 0)
+            armed = True
+        if armed and not offboard and steps == 25:
+            mav.command_long_send(1, 1, MAV_CMD_DO_SET_MODE, 0, *PX4_OFFBOARD, 0, 0, 0, 0)
+            offboard = True
+            start_ms = sim_ms
+            t0 = time.monotonic()
+        if start_ms is not None:
+            if sim_ms - start_ms > 10000:
+                max_err = max(max_err, abs(pos[2] + altitude))
+            if sim_ms - start_ms >= seconds * 1000:
+                break
+    wall = time.monotonic() - t0
+    return {"wall_s": wall, "sim_s": (sim_ms - (start_ms or 0)) / 1000.0, "pos": pos, "handshakes": steps,
+            "max_alt_err_after_10s": max_err}
