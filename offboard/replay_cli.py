@@ -1,0 +1,175 @@
+"""``slung replay FILE.tlog [--vehicle FILE] [--from T] [--to T] [--out DIR]``: replay a telemetry log through the
+live loop's estimator and controller (``offboard.replay``), print what the log holds and write a report.
+
+Exit codes: 0 replayed (or a clear report of why the log cannot be replayed: see ``docs/replay.md``);
+2 bad input (missing, empty or non-tlog file, bad options); 3 the log was read but cannot be replayed
+(fixed wing, no position, no attitude, ...), after writing ``metrics.json`` with the reasons.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from estimators.errors import UserError
+from estimators.vehicle import load_vehicle
+
+EXIT_NOT_REPLAYABLE = 3
+
+
+def _time(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a time in seconds, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite time in seconds, got {text!r}")
+    return v
+
+
+def _rate(text: str) -> float:
+    v = _time(text)
+    if not 1.0 <= v <= 5000.0:
+        raise argparse.ArgumentTypeError(f"expected a rate between 1 and 5000 Hz, got {text!r}")
+    return v
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``slung replay``."""
+    p.add_argument("tlog", metavar="FILE.tlog", help="telemetry log (QGroundControl / MAVProxy / slung format)")
+    p.add_argument("--vehicle", metavar="FILE", help="vehicle description (TOML; default: the paper's Table 1)")
+    p.add_argument("--from", dest="t_from", type=_time, metavar="T",
+                   help="start of the replayed window, vehicle time since boot (s)")
+    p.add_argument("--to", dest="t_to", type=_time, metavar="T",
+                   help="end of the replayed window, vehicle time since boot (s)")
+    p.add_argument("--out", metavar="DIR", help="report folder (default: FILE-replay beside the log)")
+    p.add_argument("--rate", type=_rate, default=250.0, metavar="HZ",
+                   help="estimator tick rate where the log holds no setpoints (default 250)")
+    p.add_argument("--no-load-sensor", action="store_true",
+                   help="ignore the log's cable-angle sensor (estimate the swing from the accelerometer)")
+    p.add_argument("--scenario", metavar="NAME",
+                   help="reference the logged flight used (default: from the run's metrics.json beside the log)")
+    p.add_argument("--reference-start", type=_time, metavar="T",
+                   help="controller time (s) at which the scenario's t = 0 fell (with --scenario)")
+    p.add_argument("--switching", choices=("sign", "smooth"), default=None,
+                   help="controller switching function (default: the run's, else smooth)")
+    p.add_argument("--no-figures", action="store_true", help="write metrics and time series only")
+
+
+def run_metadata(tlog: Path) -> dict[str, Any]:
+    """The live run's settings from ``metrics.json`` beside the tlog (written by ``slung fly`` / ``slung demo``),
+    or {} when there is none or it cannot be read."""
+    path = tlog.parent / "metrics.json"
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def build_config(args: argparse.Namespace, meta: dict[str, Any]) -> Any:
+    """The :class:`offboard.replay.ReplayConfig` from the options, completed by the run's metadata."""
+    from offboard.replay import ReferenceSpec, ReplayConfig
+
+    vehicle = load_vehicle(args.vehicle)
+    cfg = meta.get("config", {}) if isinstance(meta.get("config"), dict) else {}
+    loop = meta.get("loop", {}) if isinstance(meta.get("loop"), dict) else {}
+    reference = None
+    scenario = args.scenario or meta.get("scenario")
+    start = args.reference_start
+    if start is None:
+        start = loop.get("reference_start_s", cfg.get("reference_start_s"))
+    if args.scenario is not None and args.reference_start is None and start is None:
+        raise UserError("--scenario needs --reference-start (the controller time at which the scenario began)")
+    if scenario is not None and start is not None:
+        reference = ReferenceSpec(str(scenario), float(start))
+    if args.t_from is not None and args.t_to is not None and args.t_to <= args.t_from:
+        raise UserError(f"--to ({args.t_to:g} s) must be after --from ({args.t_from:g} s)")
+    switching = args.switching or cfg.get("switching") or "smooth"
+    epsilon = cfg.get("epsilon") or 1.0
+    return ReplayConfig(
+        vehicle=vehicle, t_from=args.t_from, t_to=args.t_to, rate_hz=args.rate,
+        load_sensor=False if args.no_load_sensor else None, reference=reference,
+        switching=switching, epsilon=float(epsilon),
+        output=cfg.get("output"), mask=cfg.get("mask"), flavour=cfg.get("flavour") or cfg.get("flavor"),
+        hover_thrust_norm=cfg.get("hover_thrust_norm"),
+    )
+
+
+def _progress_bar() -> Any:
+    state = {"last": -1}
+
+    def show(fraction: float) -> None:
+        pct = int(100 * fraction)
+        if pct == state["last"]:
+            return
+        state["last"] = pct
+        width = 30
+        done = int(fraction * width)
+        sys.stderr.write(f"\rreplay [{'#' * done}{'.' * (width - done)}] {pct:3d}%")
+        if fraction >= 1.0:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+    return show
+
+
+def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
+    """Do the work of ``slung replay``; returns (exit code, metrics, report folder). Used by tests."""
+    from offboard import replay as rp
+    from offboard.outputs import prepare_output_dir, write_json_atomic
+    from offboard.replay_report import format_summary, write_outputs
+    from offboard.tlog import TlogReader
+
+    path = Path(args.tlog)
+    if not path.exists():
+        raise UserError(f"{path}: no such file")
+    if path.is_file() and path.stat().st_size == 0:
+        raise UserError(f"{path} is empty: not a tlog")
+    tty = sys.stderr.isatty()
+    wall0 = time.perf_counter()
+    reader = TlogReader.from_path(path, progress=(lambda f: None))
+    big = reader.stats.bytes_total > 2_000_000
+    bar = _progress_bar() if tty and big else None
+    if bar is not None:
+        reader.progress = lambda f: bar(0.5 * f)
+    sc = rp.scan(reader)
+    rstats = reader.stats.as_dict()
+    if rstats["packets"] == 0:
+        raise UserError(f"{path} is not a tlog: no MAVLink packet with a valid checksum behind an 8-byte timestamp "
+                        f"in {rstats['bytes_total']} bytes")
+    config = build_config(args, run_metadata(path))
+    out_dir = prepare_output_dir(args.out or path.with_name(path.stem + "-replay"))
+    inv = rp.inventory(sc)
+    ok, reasons = rp.replayable(inv)
+    print(f"log: {path} ({rstats['bytes_total']} bytes)")
+    if not ok:
+        metrics = {"log": inv, "reader": rstats, "replayed": False, "reasons": reasons}
+        write_json_atomic(out_dir / "metrics.json", metrics)
+        print(format_summary(metrics, rstats))
+        print(f"not replayed: {'; '.join(reasons)}")
+        print(f"report: {out_dir.resolve()}")
+        return EXIT_NOT_REPLAYABLE, metrics, out_dir
+    result = rp.replay(sc, inv, config, progress=(lambda f: bar(0.5 + 0.5 * f)) if bar else None)
+    wall = time.perf_counter() - wall0
+    result.metrics["reader"] = rstats
+    result.metrics["replayed"] = True
+    span = result.metrics["estimation"].get("vehicle_time_span_s")
+    log_s = (span[1] - span[0]) if span else 0.0
+    result.metrics["speed"] = {"wall_s": wall, "log_s": log_s, "x_realtime": log_s / wall if wall > 0 else None}
+    write_outputs(result, out_dir, figures=not args.no_figures)
+    print(format_summary(result.metrics, rstats))
+    print(f"replayed {log_s:.1f} s of flight in {wall:.2f} s ({log_s / max(wall, 1e-9):.0f}x real time)")
+    print(f"report: {out_dir.resolve()}")
+    return 0, result.metrics, out_dir
+
+
+def run(args: argparse.Namespace) -> int:
+    """Entry point of ``slung replay`` (exit codes in the module docstring)."""
+    code, _, _ = run_replay(args)
+    return code

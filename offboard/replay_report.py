@@ -1,0 +1,160 @@
+"""Outputs of ``slung replay``: ``timeseries.csv``, ``metrics.json``, figures and the terminal summary table.
+
+Files are written atomically (``offboard.outputs``); figures use matplotlib's Agg backend. Units: SI, radians,
+model frame; ``t`` is the vehicle's time since boot (s).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from offboard.outputs import write_atomic, write_json_atomic, write_text_atomic
+from offboard.replay import SP_ACT, SP_ATT, ReplayResult
+
+
+def write_timeseries(result: ReplayResult, path: Path) -> Path:
+    """Every tick as CSV (header = column names; NaN where a quantity does not apply), full precision."""
+    buf = io.StringIO()
+    np.savetxt(buf, result.data, delimiter=",", header=",".join(result.columns), comments="", fmt="%.17g")
+    return write_text_atomic(path, buf.getvalue())
+
+
+def write_outputs(result: ReplayResult, out_dir: Path, figures: bool = True) -> list[Path]:
+    """metrics.json, timeseries.csv and (optionally) the figures in ``out_dir``; returns the paths written."""
+    paths = [write_json_atomic(out_dir / "metrics.json", result.metrics),
+             write_timeseries(result, out_dir / "timeseries.csv")]
+    if figures and len(result.data) > 1:
+        paths += draw_figures(result, out_dir)
+    return paths
+
+
+def draw_figures(result: ReplayResult, out_dir: Path) -> list[Path]:
+    """swing.png (estimated swing vs the cable-angle sensor), flat_outputs.png (estimated F_x, F_y, z, psi and
+    their references), setpoints.png (logged vs recomputed setpoints, when the log has them)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    col = result.column
+    t = col("t")
+    paths: list[Path] = []
+
+    def save(fig: Any, name: str) -> None:
+        fig.tight_layout()
+        path = out_dir / name
+        write_atomic(path, lambda p: fig.savefig(p, dpi=110, format="png"))
+        plt.close(fig)
+        paths.append(path)
+
+    fig, axes = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    for ax, name in zip(axes, ("alpha_x", "alpha_y")):
+        ax.plot(t, col(name), lw=1.0, label="estimate")
+        meas = col("meas_" + name)
+        if np.any(np.isfinite(meas)):
+            ax.plot(t, meas, lw=0.8, alpha=0.7, label="cable-angle sensor (latest)")
+        ax.set_ylabel(f"{name} (rad)")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("vehicle time (s)")
+    axes[0].set_title("swing estimate")
+    save(fig, "swing.png")
+
+    fig, axes = plt.subplots(4, 1, figsize=(9, 8), sharex=True)
+    for ax, (name, ref, unit) in zip(axes, (("Fx", "Fx_ref", "m"), ("Fy", "Fy_ref", "m"), ("z", "z_ref", "m"),
+                                            ("psi", "psi_ref", "rad"))):
+        ax.plot(t, col(name), lw=1.0, label="estimate")
+        r = col(ref)
+        if np.any(np.isfinite(r)):
+            ax.plot(t, r, "--", lw=1.0, label="reference")
+        ax.set_ylabel(f"{name} ({unit})")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("vehicle time (s)")
+    axes[0].set_title("flat outputs, height and heading")
+    save(fig, "flat_outputs.png")
+
+    names = SP_ATT if result.output == "attitude" else SP_ACT
+    if np.any(np.isfinite(col("log_thrust"))):
+        show = ("q_x", "q_y", "q_z", "thrust") if result.output == "attitude" else names
+        fig, axes = plt.subplots(len(show), 1, figsize=(9, 2.0 * len(show)), sharex=True)
+        for ax, name in zip(axes, show):
+            ax.plot(t, col("log_" + name), lw=1.2, label="logged")
+            rc = col("sp_" + name)
+            if np.any(np.isfinite(rc)):
+                ax.plot(t, rc, "--", lw=1.0, label="recomputed")
+            ax.set_ylabel(name)
+            ax.grid(alpha=0.3)
+            ax.legend(loc="upper right", fontsize=8)
+        axes[-1].set_xlabel("vehicle time (s)")
+        axes[0].set_title(f"setpoints ({result.output}): logged vs recomputed")
+        save(fig, "setpoints.png")
+    return paths
+
+
+def _fmt(v: Any, unit: str = "") -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.4g}{unit}"
+    return f"{v}{unit}"
+
+
+def format_summary(metrics: dict[str, Any], reader: dict[str, Any] | None = None) -> str:
+    """The terminal summary table: the log's contents, what is missing, estimation, tracking, agreement."""
+    inv = metrics["log"]
+    rows: list[tuple[str, str]] = []
+    if reader is not None:
+        rows.append(("packets", f"{reader['packets']} (MAVLink 1: {reader['mavlink1']}, 2: {reader['mavlink2']})"))
+        rows.append(("skipped", f"bad CRC {reader['bad_crc']}, garbage {reader['garbage_bytes']} B in "
+                                f"{reader['resyncs']} runs, unknown ids {reader['unknown_packets']}, "
+                                f"truncated {reader['truncated']}"))
+    rows.append(("autopilot", f"{_fmt(inv['autopilot'])} (system {_fmt(inv['autopilot_sysid'])})"))
+    rows.append(("vehicle", f"{_fmt(inv['vehicle_type'])} ({inv['vehicle_class']})"))
+    rows.append(("systems", ", ".join(f"{s['sysid']}/{s['compid']}" + (f" {s['type']}" if s["type"] else "")
+                                      for s in inv["systems"]) or "-"))
+    m = inv["measurements"]
+    rows.append(("telemetry", f"attitude {m['Attitude']}, position {m['PositionVelocity']}, imu {m['Imu']}, "
+                              f"load angle {m['LoadAngle']}"))
+    rows.append(("offboard", f"{_fmt(inv['has_offboard_segment'])} ({inv['setpoints_to_autopilot']} setpoints, "
+                             f"{inv['offboard_heartbeats']} offboard heartbeats)"))
+    est = metrics.get("estimation")
+    if est:
+        span = est.get("vehicle_time_span_s")
+        rows.append(("replayed", f"{est['ticks']} ticks ({est['tick_source']})"
+                     + (f", t = {span[0]:.3f} .. {span[1]:.3f} s" if span else "")))
+        rows.append(("swing", f"max {_fmt(est.get('swing_max_rad'), ' rad')}, "
+                              f"rms {_fmt(est.get('swing_rms_rad'), ' rad')}"))
+        for k in ("alpha_x_vs_sensor", "alpha_y_vs_sensor"):
+            if k in est:
+                rows.append((k, f"rms {_fmt(est[k]['rms'], ' rad')}, max {_fmt(est[k]['max'], ' rad')}"))
+    tr = metrics.get("tracking")
+    if tr:
+        for k in ("e_Fx", "e_Fy", "e_z", "e_psi"):
+            rows.append((k + " (est.)", f"rms {_fmt(tr[k]['rms'])}, max {_fmt(tr[k]['max'])}"))
+    ag = metrics.get("setpoint_agreement")
+    if ag:
+        if "max_abs_difference" in ag:
+            rows.append(("recomputed vs logged", f"{ag['ticks_compared']} setpoints, max |diff| "
+                                                 f"{ag['max_abs_difference']:.3g}"))
+        if "attitude_angle_rad" in ag:
+            rows.append(("  attitude", f"rms {_fmt(ag['attitude_angle_rad']['rms'], ' rad')}"))
+        if "thrust" in ag:
+            rows.append(("  thrust", f"rms {_fmt(ag['thrust']['rms'])}"))
+        if "logged_vs_autopilot_attitude_target_rad" in ag:
+            a = ag["logged_vs_autopilot_attitude_target_rad"]
+            rows.append(("logged vs ATTITUDE_TARGET", f"rms {_fmt(a['rms'], ' rad')}"))
+    for reason in inv["missing"]:
+        rows.append(("missing", reason))
+    width = max(len(k) for k, _ in rows)
+    return "\n".join(f"  {k:<{width}}  {v}" for k, v in rows)
+
+
+__all__ = ["draw_figures", "format_summary", "write_outputs", "write_timeseries"]
