@@ -162,6 +162,12 @@ class CommandMapper:
         self._last_torque: tuple[float, float, float] | None = None
         self.fallbacks = 0
 
+    def set_autopilot(self, autopilot: AutopilotModel) -> None:
+        """Replace the autopilot model (e.g. with the gains read from the vehicle) before the flight starts."""
+        self.autopilot = autopilot
+        hn = autopilot.hover_thrust_norm
+        self._k_hover = 1.0 if hn is None else hn / self.vehicle.hover_thrust_normalized
+
     # ------------------------------------------------------------------------------------------------------
     def thrust_norm(self, thrust_n: float) -> float:
         """Collective thrust N -> normalized 0..1 before limits (see module docstring)."""

@@ -197,6 +197,9 @@ class MavConnection:
         self._timesync_pending: dict[int, float] = {}
         self._last_hb_sent = -1e9
         self._closed = False
+        #: called with every batch of received messages, whoever polls (the loop must see all telemetry even
+        #: while a management command waits for its acknowledgement)
+        self.listener: Any = None
 
     # ---------------------------------------------------------------------------------------- sending ---
     def send(self, msg: Any) -> bytes:
@@ -302,6 +305,8 @@ class MavConnection:
                 self.tlog.write(msg.get_msgbuf())
             self._bookkeep(msg, kind, now)
             out.append(Received(msg, now))
+        if out and self.listener is not None:
+            self.listener(out)
         return out
 
     def _bookkeep(self, msg: Any, kind: str, now: float) -> None:

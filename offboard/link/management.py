@@ -1,0 +1,285 @@
+"""Vehicle management over MAVLink: pre-flight checks, arming, take-off, the switch to offboard control, and
+the end of the flight (hold or land, then disarm).
+
+Mode encodings (``shared/docs/mavlink-facts.md``): MAV_CMD_DO_SET_MODE (176) with param1 = 1
+(MAV_MODE_FLAG_CUSTOM_MODE_ENABLED) and
+
+- PX4: param2 = custom main mode, param3 = sub mode: OFFBOARD (6, 0), hold AUTO.LOITER (4, 3), AUTO.LAND (4, 6);
+- ArduPilot Copter: param2 = mode number: GUIDED 4, LOITER 5 (hold), LAND 9.
+
+Take-off: PX4 arms in its hold mode and flies AUTO.TAKEOFF (MAV_CMD_NAV_TAKEOFF, param7 = AMSL altitude);
+ArduPilot switches to GUIDED, arms and takes off with MAV_CMD_NAV_TAKEOFF (param7 = altitude above home).
+PX4 needs the setpoint stream flowing before DO_SET_MODE(OFFBOARD) (``COM_OF_LOSS_T``): :func:`start_offboard`
+primes it for ``prime_s`` (>= 1 s) first. ArduPilot in GUIDED takes SET_ATTITUDE_TARGET directly, but its
+thrust is a climb rate unless GUID_OPTIONS bit 3 (8) is set: :func:`configure_autopilot` sets and verifies it.
+
+Every function is synchronous and keeps the link alive while it waits through the ``idle`` callback (which
+the loop uses to stream setpoints and to read telemetry).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from estimators.errors import UserError
+from estimators.vehicle import Vehicle
+from offboard.command_mapping import AutopilotModel
+from offboard.link.connection import MavConnection
+from offboard.link.telemetry import MESSAGE_IDS
+
+log = logging.getLogger(__name__)
+
+MAV_CMD_NAV_LAND = 21
+MAV_CMD_NAV_TAKEOFF = 22
+MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_COMPONENT_ARM_DISARM = 400
+MAV_RESULT_ACCEPTED = 0
+MAV_RESULT_IN_PROGRESS = 5
+
+#: (param2, param3) of DO_SET_MODE per flavour and role
+MODES: dict[str, dict[str, tuple[int, int]]] = {
+    "px4": {"offboard": (6, 0), "hold": (4, 3), "land": (4, 6), "takeoff": (4, 2)},
+    "ardupilot": {"offboard": (4, 0), "hold": (5, 0), "land": (9, 0), "takeoff": (4, 0)},
+}
+
+
+def custom_mode(flavour: str, role: str) -> int:
+    """HEARTBEAT.custom_mode of a role's mode (PX4: main << 16 | sub << 24; ArduPilot: the number)."""
+    main, sub = MODES[flavour][role]
+    return (main << 16) | (sub << 24) if flavour == "px4" else main
+
+
+Idle = Callable[[], None]
+
+
+@dataclass
+class ManagementEvent:
+    """Something management did or saw: local monotonic time (s), kind, one-line detail."""
+
+    t: float
+    kind: str
+    detail: str
+
+
+@dataclass
+class Manager:
+    """Vehicle management for one connection; ``events`` records every step with its reason."""
+
+    conn: MavConnection
+    events: list[ManagementEvent] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    def note(self, kind: str, detail: str) -> None:
+        """Record (and log) an event."""
+        self.events.append(ManagementEvent(time.monotonic(), kind, detail))
+        log.info("%s: %s", kind, detail)
+
+    @property
+    def flavour(self) -> str:
+        """``px4`` or ``ardupilot``."""
+        assert self.conn.vehicle is not None
+        return self.conn.vehicle.flavour
+
+    # ---------------------------------------------------------------------------------- configuration ---
+    def request_streams(self, rates_hz: dict[str, float], idle: Idle | None = None) -> dict[str, int | None]:
+        """SET_MESSAGE_INTERVAL for each message name -> rate (Hz); returns the MAV_RESULT of each."""
+        out: dict[str, int | None] = {}
+        for name, hz in rates_hz.items():
+            out[name] = self.conn.set_message_interval(MESSAGE_IDS[name], hz, idle=idle)
+            if out[name] != MAV_RESULT_ACCEPTED:
+                self.warnings.append(f"autopilot did not accept {name} at {hz:g} Hz (result {out[name]})")
+        self.note("streams", ", ".join(f"{k} {v:g} Hz" for k, v in rates_hz.items()))
+        return out
+
+    def read_autopilot_model(self, vehicle: Vehicle, angle_boost_default: bool = True) -> AutopilotModel:
+        """The autopilot's attitude / rate gains and hover throttle, read as parameters, as an
+        :class:`AutopilotModel`; defaults (with a warning) for parameters that do not answer.
+
+        Rate-loop bandwidth per axis ``B = K_p tau_max / I`` (the rate P gain is in normalized torque per rad/s,
+        normalized by the vehicle file's maximum torque per axis).
+        """
+        fl = self.flavour
+        if fl == "px4":
+            att = ("MC_ROLL_P", "MC_PITCH_P", "MC_YAW_P")
+            rate = ("MC_ROLLRATE_P", "MC_PITCHRATE_P", "MC_YAWRATE_P")
+            hover = "MPC_THR_HOVER"
+        else:
+            att = ("ATC_ANG_RLL_P", "ATC_ANG_PIT_P", "ATC_ANG_YAW_P")
+            rate = ("ATC_RAT_RLL_P", "ATC_RAT_PIT_P", "ATC_RAT_YAW_P")
+            hover = "MOT_THST_HOVER"
+        default = AutopilotModel(flavour=fl)
+        tmax = (vehicle.roll_pitch_torque_max, vehicle.roll_pitch_torque_max, vehicle.yaw_torque_max)
+        kp = list(default.attitude_p)
+        bw = list(default.rate_bandwidth)
+        for i in range(3):
+            a = self.conn.param_get(att[i])
+            r = self.conn.param_get(rate[i])
+            if a is not None and math.isfinite(a) and a > 0:
+                kp[i] = a
+            else:
+                self.warnings.append(f"{att[i]} not readable: assuming {kp[i]:g}")
+            if r is not None and math.isfinite(r) and r > 0:
+                bw[i] = r * tmax[i] / vehicle.inertia[i]
+            else:
+                self.warnings.append(f"{rate[i]} not readable: assuming a rate bandwidth of {bw[i]:g} 1/s")
+        h = self.conn.param_get(hover)
+        hover_norm = None
+        if h is not None and 0.0 < h < 1.0:
+            hover_norm = h
+            mine = vehicle.hover_thrust_normalized
+            if abs(h - mine) > 0.1 * mine:
+                self.warnings.append(f"{hover} = {h:.3f} differs from the vehicle file's hover thrust {mine:.3f} "
+                                     "(total weight / max thrust) by more than 10 %: check the vehicle file")
+        boost = angle_boost_default
+        if fl == "ardupilot":
+            b = self.conn.param_get("ATC_ANGLE_BOOST")
+            boost = bool(b) if b is not None else angle_boost_default
+        model = AutopilotModel(fl, (kp[0], kp[1], kp[2]), (bw[0], bw[1], bw[2]), hover_norm, boost)
+        self.note("autopilot_model", f"attitude P {kp}, rate bandwidth {[round(b, 2) for b in bw]} 1/s, "
+                                     f"hover {hover_norm}, angle boost {boost}")
+        return model
+
+    def check_vehicle_constants(self, vehicle: Vehicle) -> None:
+        """Compare the vehicle file with what the autopilot reports (the emulator's EMU_* parameters); a warning
+        for each mismatch above 5 %, nothing if the autopilot has no such parameters."""
+        pairs = {"EMU_MASS": vehicle.mass_vehicle, "EMU_LOAD_MASS": vehicle.mass_load,
+                 "EMU_CABLE_LEN": vehicle.cable_length, "EMU_THR_MAX": vehicle.thrust_max}
+        first = self.conn.param_get("EMU_MASS", timeout=0.3, retries=1)
+        if first is None:
+            return
+        for name, mine in pairs.items():
+            theirs = first if name == "EMU_MASS" else self.conn.param_get(name, timeout=0.3, retries=1)
+            if theirs is not None and abs(theirs - mine) > 0.05 * max(abs(mine), 1e-9):
+                self.warnings.append(f"vehicle file {name} = {mine:g} but the vehicle reports {theirs:g}")
+
+    def ensure_ardupilot_thrust_mode(self) -> None:
+        """ArduPilot: GUID_OPTIONS bit 3 so that SET_ATTITUDE_TARGET thrust is throttle; UserError if refused."""
+        v = self.conn.param_get("GUID_OPTIONS")
+        if v is None:
+            raise UserError("ArduPilot did not answer GUID_OPTIONS: cannot make thrust a throttle")
+        if int(v) & 8:
+            self.note("guid_options", f"GUID_OPTIONS = {int(v)} (thrust is throttle)")
+            return
+        new = int(v) | 8
+        self.conn.param_set("GUID_OPTIONS", new, 6)
+        t_end = time.monotonic() + 2.0
+        while time.monotonic() < t_end:
+            self.conn.poll()
+            if int(self.conn.params.get("GUID_OPTIONS", v)) & 8:
+                self.note("guid_options", f"GUID_OPTIONS {int(v)} -> {new} (thrust is throttle)")
+                return
+            time.sleep(0.005)
+        raise UserError("ArduPilot refused GUID_OPTIONS bit 3 (thrust as throttle); set it by hand")
+
+    # ------------------------------------------------------------------------------------------ modes ---
+    def set_mode(self, role: str, idle: Idle | None = None, retries: int = 3) -> bool:
+        """DO_SET_MODE to the flavour's mode for ``role`` (offboard, hold, land); True when accepted."""
+        main, sub = MODES[self.flavour][role]
+        res = self.conn.command(MAV_CMD_DO_SET_MODE, 1.0, float(main), float(sub), idle=idle, retries=retries)
+        self.note("set_mode", f"{role} ({main}, {sub}): result {res}")
+        return res == MAV_RESULT_ACCEPTED
+
+    def send_mode_no_wait(self, role: str) -> None:
+        """DO_SET_MODE without waiting for the answer (failsafes: the link may be gone)."""
+        main, sub = MODES[self.flavour][role]
+        self.conn.command_long(MAV_CMD_DO_SET_MODE, 1.0, float(main), float(sub))
+
+    def in_mode(self, role: str) -> bool:
+        """Whether the last heartbeat shows the role's mode."""
+        v = self.conn.vehicle
+        return v is not None and v.custom_mode == custom_mode(self.flavour, role)
+
+    def wait_for(self, pred: Callable[[], bool], timeout: float, idle: Idle | None = None) -> bool:
+        """Poll until ``pred()`` (True) or ``timeout`` s (False), calling ``idle`` meanwhile."""
+        t_end = time.monotonic() + timeout
+        while time.monotonic() < t_end:
+            self.conn.poll()
+            if pred():
+                return True
+            if idle is not None:
+                idle()
+            time.sleep(0.002)
+        return False
+
+    # --------------------------------------------------------------------------------------- arm / fly ---
+    def arm(self, idle: Idle | None = None, timeout: float = 10.0) -> None:
+        """Arm (retrying while the autopilot says 'temporarily rejected', e.g. no position yet); UserError."""
+        t_end = time.monotonic() + timeout
+        last = None
+        while time.monotonic() < t_end:
+            last = self.conn.command(MAV_CMD_COMPONENT_ARM_DISARM, 1.0, 0.0, idle=idle)
+            if last == MAV_RESULT_ACCEPTED:
+                self.note("arm", "armed")
+                return
+            self.wait_for(lambda: False, 0.25, idle)
+        why = "; ".join(self.conn.statustexts[-3:])
+        raise UserError(f"the autopilot refused to arm (result {last}){': ' + why if why else ''}")
+
+    def disarm(self, idle: Idle | None = None) -> bool:
+        """Disarm (not forced: only on the ground)."""
+        res = self.conn.command(MAV_CMD_COMPONENT_ARM_DISARM, 0.0, 0.0, idle=idle)
+        self.note("disarm", f"result {res}")
+        return res == MAV_RESULT_ACCEPTED
+
+    def takeoff(self, height: float, home_alt_amsl: float | None, height_now: Callable[[], float | None],
+                idle: Idle | None = None, timeout: float = 60.0) -> None:
+        """Arm and climb to ``height`` m above home with the autopilot's own take-off; UserError on failure.
+
+        height_now: the current height above home (m, from telemetry), None while unknown.
+        """
+        fl = self.flavour
+        if fl == "ardupilot" and not self.set_mode("offboard", idle=idle):  # GUIDED
+            raise UserError("ArduPilot refused GUIDED mode")
+        self.arm(idle=idle)
+        if fl == "px4":
+            alt = (home_alt_amsl if home_alt_amsl is not None else 0.0) + height
+            res = self.conn.command(MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, alt, idle=idle)
+        else:
+            res = self.conn.command(MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, height, idle=idle)
+        if res != MAV_RESULT_ACCEPTED:
+            raise UserError(f"take-off refused (result {res}): " + "; ".join(self.conn.statustexts[-3:]))
+        self.note("takeoff", f"to {height:.2f} m above home")
+
+        def reached() -> bool:
+            h = height_now()
+            return h is not None and h >= height - 0.1
+
+        if not self.wait_for(reached, timeout, idle):
+            raise UserError(f"take-off did not reach {height:.2f} m within {timeout:g} s")
+        self.note("takeoff_done", f"height {height_now():.2f} m")
+
+    def start_offboard(self, prime: Idle, prime_s: float, idle: Idle | None = None) -> None:
+        """Stream setpoints (``prime`` sends one and paces itself) for ``prime_s`` s, then switch to
+        OFFBOARD (PX4) / GUIDED (ArduPilot); UserError if refused."""
+        t_end = time.monotonic() + prime_s
+        n = 0
+        while time.monotonic() < t_end:
+            prime()
+            n += 1
+        self.note("primed", f"{n} setpoints in {prime_s:g} s before the mode switch")
+        if not self.set_mode("offboard", idle=prime):
+            raise UserError("the autopilot refused offboard control: " + "; ".join(self.conn.statustexts[-3:]))
+
+    def finish(self, action: str, idle: Idle | None = None, land_timeout: float = 30.0,
+               height_now: Callable[[], float | None] | None = None) -> str:
+        """End of flight: ``hold`` (switch to the hold mode) or ``land`` (land, wait for touchdown, disarm).
+        Returns what was done, for the log."""
+        if action == "hold":
+            ok = self.set_mode("hold", idle=idle)
+            return "hold" if ok else "hold (not acknowledged)"
+        ok = self.set_mode("land", idle=idle)
+        if not ok:
+            return "land (not acknowledged)"
+        v = self.conn.vehicle
+        landed = self.wait_for(lambda: v is not None and not v.armed, land_timeout, idle)
+        if landed:
+            self.note("disarmed", "landed and disarmed")
+            return "landed, disarmed"
+        return "landing (not yet disarmed)"
+
+
+__all__ = ["MODES", "ManagementEvent", "Manager", "custom_mode"]
