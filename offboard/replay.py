@@ -28,10 +28,12 @@ time since boot (s). Output: :class:`ReplayResult` (a table with one row per tic
 
 from __future__ import annotations
 
+import bisect
 import math
+import struct
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -111,7 +113,8 @@ class SystemInfo:
 @dataclass
 class Event:
     """One entry of the replay stream, in log order. kind: "m" (measurement), "sp" (setpoint sent to the
-    autopilot), "at" (the autopilot's ATTITUDE_TARGET), "mode" (offboard flag changed).
+    autopilot), "at" (the autopilot's ATTITUDE_TARGET), "mode" (offboard flag changed), "clock" (SYSTEM_TIME:
+    the vehicle's ``time_boot_ms``, the lockstep emulator's tick marker).
 
     sysid: sender; vt: vehicle/sender time field (s) or None; lt: logger time (s); payload: the record."""
 
@@ -202,6 +205,8 @@ def scan(messages: Iterable[tuple[float, Any]]) -> Scan:
             continue
         if kind == "ATTITUDE_TARGET":
             events.append(Event("at", sid, vt, lt, (tuple(float(v) for v in msg.q), float(msg.thrust))))
+        elif kind == "SYSTEM_TIME":
+            events.append(Event("clock", sid, vt, lt, msg.time_boot_ms * 1e-3))
     if ap_sysid is None:
         ap_sysid = telemetry_sysid
     return Scan(systems, events, {}, ap_sysid, ap_kind, mav_type, hb_offboard, hb_total, mode_changes, sp_targets)
@@ -304,19 +309,69 @@ def replayable(inv: dict[str, Any]) -> tuple[bool, list[str]]:
 
 @dataclass(frozen=True)
 class ReferenceSpec:
-    """The reference a logged flight used: scenario name and the controller time (s) at which its t = 0 fell."""
+    """The reference a logged flight used: the scenario's name. ``start`` (s): the vehicle time at which the
+    reference's t = 0 fell (only used when the live run's own tick log is not available; otherwise the tick log's
+    controller time ``t_ref`` is used). ``origin``: the horizontal shift (m, world NWU) the live loop added to the
+    reference's F_x, F_y, or None to recompute it as the loop does (vehicle position at the start minus the
+    reference's start)."""
 
     scenario: str
-    start: float
+    start: float = 0.0
+    origin: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
+class LiveRun:
+    """The live loop's own per-tick log (``timeseries_live.csv`` of ``slung fly`` / ``slung demo``; columns of
+    ``offboard.loop.LIVE_COLUMNS``): tick vehicle time ``t_vehicle`` (s), controller time ``t_ref`` (s), cumulative
+    number of measurements pushed to the estimator ``n_meas``, the estimate the controller used (N x 24, order
+    :data:`EST_COLUMNS`) and the setpoint's wire fields (N x 8 attitude / N x 4 actuator, full precision)."""
+
+    t_vehicle: np.ndarray
+    t_ref: np.ndarray
+    n_meas: np.ndarray
+    est: np.ndarray
+    sp: np.ndarray
+
+
+LIVE_EST_NAMES = ("fx0", "fx1", "fx2", "fx3", "fx4", "fx5", "fy0", "fy1", "fy2", "fy3", "fy4", "fy5", "z", "z_rate",
+                  "phi", "theta", "psi", "phi_rate", "theta_rate", "psi_rate", "alpha_x", "alpha_y",
+                  "alpha_x_rate", "alpha_y_rate")
+
+
+def load_live_table(path: Any) -> LiveRun | None:
+    """The :class:`LiveRun` in the CSV at ``path``, or None when the file is missing or lacks a needed column."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            header = fh.readline().strip().split(",")
+            data = np.loadtxt(fh, delimiter=",", ndmin=2)
+    except (OSError, ValueError):
+        return None
+    idx = {n: i for i, n in enumerate(header)}
+    need = ["t_vehicle", "t_ref", "n_meas", *("est_" + n for n in LIVE_EST_NAMES), *(f"sp{i}" for i in range(4))]
+    if any(n not in idx for n in need) or data.shape[1] != len(header):
+        return None
+    sp_cols = [idx[f"sp{i}"] for i in range(8) if f"sp{i}" in idx]
+    sp = data[:, sp_cols]
+    if sp.shape[1] >= 8 and np.all(np.isnan(sp[:, 4:8])):
+        sp = sp[:, :4]
+    return LiveRun(data[:, idx["t_vehicle"]], data[:, idx["t_ref"]], data[:, idx["n_meas"]].astype(int),
+                   data[:, [idx["est_" + n] for n in LIVE_EST_NAMES]], sp)
 
 
 @dataclass(frozen=True)
 class ReplayConfig:
-    """How to replay. vehicle: the controller's nominal vehicle; t_from / t_to: vehicle-time window (s) or None;
+    """How to replay.
+
+    vehicle: the controller's nominal vehicle; t_from / t_to: vehicle-time window (s, since boot) or None;
     rate_hz: tick rate where no setpoints are logged (and the estimator's step when the log does not say);
-    estimator: estimator kind; load_sensor: None = use one when the log has it; reference: see
-    :class:`ReferenceSpec`; switching / epsilon: the controller's switching function; output / mask: None =
-    from the logged setpoints; flavour: None = from the HEARTBEAT; delay_s: the estimator's fusion horizon."""
+    estimator: estimator kind; load_sensor: None = use one when the log has it; delay_s: the estimator's fusion
+    horizon (s); reference: see :class:`ReferenceSpec` (None: no controller); switching / epsilon: the
+    controller's switching function; output / mask: None = from the logged setpoints; mapping: extra
+    ``MappingConfig`` fields (limits); autopilot: ``AutopilotModel`` fields (flavour, attitude_p, rate_bandwidth,
+    hover_thrust_norm, angle_boost; flavour defaults to the HEARTBEAT's); live: the live run's tick log, for an
+    exact replay.
+    """
 
     vehicle: Vehicle = field(default_factory=Vehicle)
     t_from: float | None = None
@@ -324,14 +379,15 @@ class ReplayConfig:
     rate_hz: float = 250.0
     estimator: str = "kf"
     load_sensor: bool | None = None
+    delay_s: float = 0.012
     reference: ReferenceSpec | None = None
     switching: str = "smooth"
     epsilon: float = 1.0
     output: str | None = None
     mask: str | None = None
-    flavour: str | None = None
-    hover_thrust_norm: float | None = None
-    delay_s: float = 0.012
+    mapping: dict[str, Any] | None = None
+    autopilot: dict[str, Any] | None = None
+    live: LiveRun | None = None
 
 
 EST_COLUMNS = (
@@ -347,11 +403,11 @@ def columns_for(output: str) -> tuple[str, ...]:
     """The time-series columns for setpoint kind ``output`` ("attitude" or "actuator")."""
     sp = SP_ATT if output == "attitude" else SP_ACT
     return (
-        "t", "logger_t", "tick_source", *EST_COLUMNS, "meas_alpha_x", "meas_alpha_y",
+        "t", "t_ref", "logger_t", "tick_source", *EST_COLUMNS, "meas_alpha_x", "meas_alpha_y",
         "pos_x", "pos_y", "pos_z",
         "Fx_ref", "Fy_ref", "z_ref", "psi_ref", "cmd_thrust", "cmd_tau_phi", "cmd_tau_theta", "cmd_tau_psi",
         *("sp_" + c for c in sp), *("log_" + c for c in sp), "ap_q_w", "ap_q_x", "ap_q_y", "ap_q_z", "ap_thrust",
-        "offboard",
+        "offboard", "live_est_diff", "live_sp_diff",
     )
 
 
@@ -365,13 +421,14 @@ class ReplayResult:
     output: str
 
     def column(self, name: str) -> np.ndarray:
+        """One column over the ticks."""
         return self.data[:, self.columns.index(name)]
 
 
 def initial_guess(vehicle: Vehicle, pv: PositionVelocity | None, att: Attitude | None,
                   load: LoadAngle | None) -> ControlState:
-    """The estimator's prior from the first measurements: position / velocity, attitude, swing (0 without a
-    cable-angle sensor); every rate not measured is 0."""
+    """The estimator's prior as the live loop builds it (``FlightLoop.initialize_estimator``): position and velocity,
+    attitude, swing from the cable-angle sensor (0 without one); every rate not measured is 0."""
     k = flat_constants(vehicle)
     x = y = z = vx = vy = vz = 0.0
     if pv is not None:
@@ -393,115 +450,341 @@ def _quat_angle(a: tuple[float, ...], b: tuple[float, ...]) -> float:
     return 2.0 * math.acos(min(1.0, d))
 
 
+_F32 = struct.Struct("<f")
+
+
+def _f32(v: float) -> float:
+    """``v`` rounded to float32, as a MAVLink float field carries it."""
+    return _F32.unpack(_F32.pack(v))[0] if math.isfinite(v) and abs(v) < 3.4e38 else v
+
+
 def _sp_fields(sp: Any) -> tuple[float, ...]:
     if isinstance(sp, AttitudeTarget):
         return (*sp.q, sp.roll_rate, sp.pitch_rate, sp.yaw_rate, sp.thrust)
     return tuple(sp)
 
 
+class _Tick(NamedTuple):
+    """One controller tick to replay: vehicle time t_v and controller time t_ref (s); n_push: measurements of the
+    autopilot's stream pushed since the start index; logged: the logged wire setpoint; lt: its logger time;
+    live: row index in the live tick log or -1."""
+
+    t_v: float
+    t_ref: float
+    n_push: int
+    logged: tuple[float, ...]
+    lt: float
+    live: int
+
+
+def _plan_from_live(meas_pos: list[int], sp_events: list[tuple[int, Event]], live: LiveRun,
+                    output: str) -> tuple[int, list[_Tick]]:
+    """Align the live tick log with the tlog: the first logged setpoint equal (float32) to the live log's first
+    one marks tick 0; the estimator was initialized ``n_meas[0]`` measurements before it. Returns the index in the
+    measurement stream of the first pushed measurement and the ticks."""
+    n = len(live.t_vehicle)
+    if n == 0:
+        raise ValueError("the live tick log is empty")
+    nsp = 8 if output == "attitude" else 4
+    want = tuple(_f32(float(v)) for v in live.sp[0, :nsp])
+    j0 = next((j for j, (_, e) in enumerate(sp_events) if _sp_fields(e.payload[0]) == want), None)
+    if j0 is None:
+        raise ValueError("the live tick log does not match this tlog (its first setpoint is not in the log)")
+    if j0 + n > len(sp_events):
+        raise ValueError(f"the live tick log has {n} ticks but the tlog only {len(sp_events) - j0} setpoints after "
+                         "the first one")
+    first_idx = sp_events[j0][0]
+    before = bisect.bisect_left(meas_pos, first_idx)
+    start = before - int(live.n_meas[0])
+    if start < 0:
+        raise ValueError("the live tick log counts more measurements than the tlog holds")
+    ticks = []
+    for k in range(n):
+        e = sp_events[j0 + k][1]
+        ticks.append(_Tick(float(live.t_vehicle[k]), float(live.t_ref[k]), int(live.n_meas[k]),
+                           _sp_fields(e.payload[0]), e.lt, k))
+    return start, ticks
+
+
+def _plan_from_setpoints(events: list[Event], meas_pos: list[int], meas: list[Any],
+                         sp_events: list[tuple[int, Event]], output: str) -> tuple[int, list[_Tick]]:
+    """Ticks from the logged setpoints alone (no live tick log): the offboard segment starts at the first setpoint
+    after the HEARTBEAT that reports offboard mode (the loop's start), or at the first setpoint when the log has
+    no mode information; the filter is initialized from the telemetry logged before that first tick; controller
+    time from the setpoint's own time field (SET_ATTITUDE_TARGET: whole ms, snapped to the loop period when the
+    ticks are regular), vehicle time = that of the newest measurement at the first tick + controller time.
+    Approximate by construction: exact only when the live loop ticked exactly so."""
+    on_idx = next((i for i, e in enumerate(events) if e.kind == "mode" and e.payload), None)
+    off_idx = None
+    if on_idx is not None:
+        off_idx = next((i for i, e in enumerate(events) if i > on_idx and e.kind == "mode" and not e.payload), None)
+    sel = [(i, e) for i, e in sp_events if (on_idx is None or i > on_idx) and (off_idx is None or i < off_idx)]
+    if not sel:
+        return 0, []
+    start = bisect.bisect_left(meas_pos, sel[0][0])  # the filter starts from what was known at the first tick
+    t_newest = max((m.t for m in meas[:start]), default=0.0)
+    times = [e.payload[1].time_boot_ms * 1e-3 if output == "attitude" else e.payload[1].time_usec * 1e-6
+             for _, e in sel]
+    # vehicle time of each tick: the newest SYSTEM_TIME marker before it when the autopilot sends one per tick
+    # (the lockstep emulator's handshake: exactly the loop's tick time), else the first tick's newest sample time
+    # plus the setpoint's time field (whole ms for SET_ATTITUDE_TARGET, snapped to the loop period when regular)
+    clock_pos = [i for i, e in enumerate(events) if e.kind == "clock"]
+    n_clock = sum(1 for i in clock_pos if sel[0][0] - 1 <= i <= sel[-1][0]) if clock_pos else 0
+    t_vs: list[float] = []
+    if n_clock >= 0.9 * len(sel):
+        for i, _ in sel:
+            c = bisect.bisect_left(clock_pos, i) - 1
+            t_vs.append(events[clock_pos[c]].payload if c >= 0 else math.nan)
+    else:
+        period = 0.0
+        if len(times) > 2:
+            d = np.diff(np.asarray(times))
+            d = d[d > 0]
+            period = float(np.median(d)) if len(d) else 0.0
+        if output == "attitude" and period >= 0.002 and all(
+                abs(t / period - round(t / period)) * period <= 0.0011 for t in times[: min(len(times), 500)]):
+            times = [round(t / period) * period for t in times]
+        t_vs = [t_newest + t for t in times]
+    t0 = t_vs[0]
+    ticks = []
+    last = -math.inf
+    for (i, e), t_v in zip(sel, t_vs):
+        if not t_v > last:  # the same marker twice (a lost one) or out of order: not a new tick
+            continue
+        last = t_v
+        n_push = bisect.bisect_left(meas_pos, i) - start
+        ticks.append(_Tick(t_v, t_v - t0, n_push, _sp_fields(e.payload[0]), e.lt, -1))
+    return start, ticks
+
+
 def replay(sc: Scan, inv: dict[str, Any], config: ReplayConfig,
            progress: Callable[[float], None] | None = None) -> ReplayResult:
-    """Pass 2 (see module docstring). The log must be :func:`replayable`."""
+    """Pass 2 (see module docstring). The log must be :func:`replayable`. ValueError when a live tick log is
+    given that does not belong to this tlog."""
     from estimators.factory import make_estimator
-    from offboard import smc
-    from offboard.command_mapping import AutopilotModel, CommandMapper, MappingConfig
+    from offboard.link.setpoints import MASKS
 
     ap = inv["autopilot_sysid"]
     vehicle = config.vehicle
     load_sensor = inv["has_load_sensor"] if config.load_sensor is None else config.load_sensor
-    events = [e for e in sc.events if e.kind != "m" or e.sysid == ap]
-    sp_events = [e for e in events if e.kind == "sp" and (e.sysid == ap or e.sysid == 0)]
-    output = config.output or ("actuator" if any(isinstance(e.payload[0], ActuatorTarget) for e in sp_events)
+    events = [e for e in sc.events if e.kind not in ("m", "clock") or e.sysid == ap]
+    sp_all = [(i, e) for i, e in enumerate(events) if e.kind == "sp" and (e.sysid == ap or e.sysid == 0)]
+    output = config.output or ("actuator" if any(isinstance(e.payload[0], ActuatorTarget) for _, e in sp_all)
                                else "attitude")
-    sp_events = [e for e in sp_events if isinstance(e.payload[0], AttitudeTarget if output == "attitude"
-                                                    else ActuatorTarget)]
-    logged_ticks = len(sp_events) > 0
+    kind_cls = AttitudeTarget if output == "attitude" else ActuatorTarget
+    sp_events = [(i, e) for i, e in sp_all if isinstance(e.payload[0], kind_cls)]
+    meas_pos = [i for i, e in enumerate(events) if e.kind == "m"]
+    meas = [events[i].payload for i in meas_pos]
+
+    if sp_events and config.live is not None:
+        start, ticks = _plan_from_live(meas_pos, sp_events, config.live, output)
+        source = "live tick log"
+    elif sp_events:
+        start, ticks = _plan_from_setpoints(events, meas_pos, meas, sp_events, output)
+        source = "logged setpoints"
+    else:
+        start, ticks = 0, []
+        source = "grid"
+    t_from = -math.inf if config.t_from is None else config.t_from
+    t_to = math.inf if config.t_to is None else config.t_to
+    if ticks:
+        k0 = next((k for k, tk in enumerate(ticks) if tk.t_v >= t_from), len(ticks))
+        if k0 > 0 and k0 < len(ticks):  # start later: initialize where that tick's measurements end
+            start += ticks[k0 - 1].n_push
+            base = ticks[k0 - 1].n_push
+            ticks = [tk._replace(n_push=tk.n_push - base) for tk in ticks[k0:]]
+        elif k0 >= len(ticks):
+            ticks = []
+        ticks = [tk for tk in ticks if tk.t_v <= t_to]
     rate = config.rate_hz
-    if logged_ticks and len(sp_events) > 2:
-        ts = [e.vt for e in sp_events if e.vt is not None]
-        if len(ts) > 2:
-            dts = np.diff(np.asarray(ts))
-            dts = dts[dts > 0]
-            if len(dts):
-                rate = float(1.0 / np.median(dts))
+    if len(ticks) > 2:
+        d = np.diff(np.asarray([tk.t_v for tk in ticks]))
+        d = d[d > 0]
+        if len(d):
+            rate = float(1.0 / np.median(d))
     estimator = make_estimator(config.estimator, vehicle, load_sensor=load_sensor, rate_hz=rate,
                                delay_s=config.delay_s)
+    cols = columns_for(output)
+    if ticks:
+        rows, extra = _replay_ticks(events, meas_pos, meas, start, ticks, estimator, config, output, load_sensor,
+                                    progress)
+    else:
+        source = f"grid at {rate:g} Hz"
+        rows, extra = _replay_grid(events, estimator, vehicle, rate, t_from, t_to, load_sensor, output, progress)
+    if progress is not None:
+        progress(1.0)
+    data = np.array(rows, dtype=float) if rows else np.zeros((0, len(cols)))
+    metrics = _metrics(data, cols, inv, estimator, output, source, extra, config, rate, load_sensor, MASKS)
+    return ReplayResult(data, cols, metrics, output)
+
+
+def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], start: int, ticks: list[_Tick],
+                  estimator: Any, config: ReplayConfig, output: str, load_sensor: bool,
+                  progress: Callable[[float], None] | None) -> tuple[list[tuple[float, ...]], dict[str, Any]]:
+    """Replay the controller ticks (see module docstring); returns the rows and the comparison figures."""
+    from offboard import smc
+    from offboard.command_mapping import AutopilotModel, CommandMapper, MappingConfig
+    from offboard.link.setpoints import MASKS
+
+    vehicle = config.vehicle
+    prior = meas[:start]
+    att = next((m for m in reversed(prior) if isinstance(m, Attitude)), None)
+    pos = next((m for m in reversed(prior) if isinstance(m, PositionVelocity)), None)
+    load = next((m for m in reversed(prior) if isinstance(m, LoadAngle)), None)
+    if att is None or pos is None:  # nothing before the start: take the first ones after it
+        att = att or next((m for m in meas[start:] if isinstance(m, Attitude)), None)
+        pos = pos or next((m for m in meas[start:] if isinstance(m, PositionVelocity)), None)
+    t_init = max(att.t if att else -math.inf, pos.t if pos else -math.inf)
+    if not math.isfinite(t_init):
+        t_init = ticks[0].t_v
+    estimator.initialize(t_init, initial_guess(vehicle, pos, att, load))
+
     scenario = None
-    ref_start = 0.0
-    if config.reference is not None and logged_ticks:
+    ox = oy = 0.0
+    if config.reference is not None:
         from offboard.scenarios import make_scenario
 
         scenario = make_scenario(config.reference.scenario)
-        ref_start = config.reference.start
+        if config.reference.origin is not None:
+            ox, oy = config.reference.origin
+        elif pos is not None:
+            r0 = scenario.reference.sample(0.0)
+            ox, oy = pos.x - r0.fx[0], pos.y - r0.fy[0]
     params = smc.ControllerParams.for_vehicle(vehicle, switching=config.switching, epsilon=config.epsilon)
     mask = config.mask
     if mask is None:
-        masks = {e.payload[0].type_mask for e in sp_events if isinstance(e.payload[0], AttitudeTarget)}
-        from offboard.link.setpoints import MASKS
-
+        masks = {round(e.payload[0].type_mask) for e in events if e.kind == "sp"
+                 and isinstance(e.payload[0], AttitudeTarget)}
         inverse = {v: k for k, v in MASKS.items()}
         mask = inverse.get(next(iter(masks)), "attitude") if len(masks) == 1 else "attitude"
-    flavour = config.flavour or (inv["autopilot"] if inv["autopilot"] in ("px4", "ardupilot") else "px4")
-    mapper = CommandMapper(vehicle, MappingConfig(output=output, mask=mask),
-                           AutopilotModel(flavour=flavour, hover_thrust_norm=config.hover_thrust_norm))
+    ap_kw = dict(config.autopilot or {})
+    for key in ("attitude_p", "rate_bandwidth"):
+        if key in ap_kw:
+            ap_kw[key] = tuple(ap_kw[key])
+    mapper = CommandMapper(vehicle, MappingConfig(**{"output": output, "mask": mask, **(config.mapping or {})}),
+                           AutopilotModel(**ap_kw))
     memory = smc.ControllerMemory()
-
-    cols = columns_for(output)
-    nsp = len(SP_ATT if output == "attitude" else SP_ACT)
     nan = math.nan
+    nsp = 8 if output == "attitude" else 4
     nan_sp = (nan,) * nsp
+    live = config.live
     rows: list[tuple[float, ...]] = []
-    t_from = -math.inf if config.t_from is None else config.t_from
-    t_to = math.inf if config.t_to is None else config.t_to
+    cmp_angle: list[float] = []
+    cmp_fields: list[tuple[float, ...]] = []
+    cmp_exact: list[bool] = []
+    live_est: list[float] = []
+    live_sp: list[float] = []
+    ap_angle: list[float] = []
+    # the autopilot's ATTITUDE_TARGET and mode flag, in log order, merged by event index
+    side = [(i, e) for i, e in enumerate(events) if e.kind in ("at", "mode")]
+    si = 0
+    last_at: tuple[float, ...] = (nan,) * 5
+    offboard = nan
+    last_load = (nan, nan)
+    last_pos = (nan, nan, nan)
+    pushed = 0
+    step = smc.step
+    n_t = len(ticks)
+    for k, tk in enumerate(ticks):
+        if progress is not None and k % 2000 == 0:
+            progress(k / n_t)
+        hi = start + tk.n_push
+        while pushed + start < hi:
+            m = meas[start + pushed]
+            estimator.push(m)
+            if isinstance(m, LoadAngle):
+                last_load = (m.alpha_x, m.alpha_y)
+            elif isinstance(m, PositionVelocity):
+                last_pos = (m.x, m.y, m.z)
+            pushed += 1
+        ev_idx = meas_pos[hi - 1] if hi > 0 and hi - 1 < len(meas_pos) else -1
+        while si < len(side) and side[si][0] <= ev_idx:
+            e = side[si][1]
+            if e.kind == "at":
+                last_at = (*e.payload[0], e.payload[1])
+            else:
+                offboard = 1.0 if e.payload else 0.0
+            si += 1
+        t_v, t_ref = tk.t_v, tk.t_ref
+        est = estimator.estimate(t_v)
+        logged = tk.logged
+        if scenario is not None:
+            ref = scenario.reference.sample(t_ref)
+            rfx = (ref.fx[0] + ox, *ref.fx[1:])
+            rfy = (ref.fy[0] + oy, *ref.fy[1:])
+            cmd, memory = step(t_ref, est, rfx, rfy, ref.z, ref.psi, memory, params)
+            sp = mapper.map(t_ref, cmd, est)
+            if math.isfinite(cmd.thrust + cmd.tau_phi + cmd.tau_theta + cmd.tau_psi):
+                estimator.push_command(t_v, cmd.thrust, (cmd.tau_phi, cmd.tau_theta, cmd.tau_psi))
+            recomputed = _sp_fields(sp)
+            refs = (rfx[0], rfy[0], ref.z[0], ref.psi[0])
+            cmds = (cmd.thrust, cmd.tau_phi, cmd.tau_theta, cmd.tau_psi)
+            cmp_exact.append(all(_f32(a) == b for a, b in zip(recomputed, logged)))
+            if output == "attitude":
+                cmp_angle.append(_quat_angle(recomputed[:4], logged[:4]))
+                cmp_fields.append(tuple(abs(a - b) for a, b in zip(recomputed[4:], logged[4:])))
+            else:
+                cmp_fields.append(tuple(abs(a - b) for a, b in zip(recomputed, logged)))
+        else:
+            recomputed, refs, cmds = nan_sp, (nan,) * 4, (nan,) * 4
+        d_est = d_sp = nan
+        if live is not None and tk.live >= 0:
+            le = live.est[tk.live]
+            d_est = max(abs(a - b) for a, b in zip((*est.fx, *est.fy, *est[2:]), le))
+            live_est.append(d_est)
+            if scenario is not None:
+                d_sp = max(abs(a - b) for a, b in zip(recomputed, live.sp[tk.live, :nsp]))
+                live_sp.append(d_sp)
+        if output == "attitude" and math.isfinite(last_at[0]):
+            ap_angle.append(_quat_angle(last_at[:4], logged[:4]))
+        rows.append((t_v, t_ref, tk.lt, 1.0, *est.fx, *est.fy, *est[2:], *last_load, *last_pos, *refs, *cmds,
+                     *recomputed, *logged, *last_at, offboard, d_est, d_sp))
+    extra: dict[str, Any] = {"controller_ran": scenario is not None, "origin": [ox, oy], "mapper": mapper,
+                             "cmp_angle": cmp_angle, "cmp_fields": cmp_fields, "cmp_exact": cmp_exact,
+                             "ap_angle": ap_angle, "live_est": live_est, "live_sp": live_sp,
+                             "t_init": t_init, "start_index": start}
+    return rows, extra
 
-    first_pv = next((e.payload for e in events if e.kind == "m" and isinstance(e.payload, PositionVelocity)
-                     and e.payload.t >= t_from), None)
-    first_att = next((e.payload for e in events if e.kind == "m" and isinstance(e.payload, Attitude)
-                      and e.payload.t >= t_from), None)
-    first_load = next((e.payload for e in events if e.kind == "m" and isinstance(e.payload, LoadAngle)
-                       and e.payload.t >= t_from), None) if load_sensor else None
-    initialized = False
-    t_init = 0.0
+
+def _replay_grid(events: list[Event], estimator: Any, vehicle: Vehicle, rate: float, t_from: float, t_to: float,
+                 load_sensor: bool, output: str, progress: Callable[[float], None] | None
+                 ) -> tuple[list[tuple[float, ...]], dict[str, Any]]:
+    """Estimation only, on a fixed grid of vehicle time driven by the newest sample time (see module docstring)."""
+    nan = math.nan
+    nsp = 8 if output == "attitude" else 4
+    tail = (nan,) * (8 + 2 * nsp)
+    meas = [e for e in events if e.kind == "m" and t_from <= e.payload.t <= t_to]
+    first_pv = next((e.payload for e in meas if isinstance(e.payload, PositionVelocity)), None)
+    first_att = next((e.payload for e in meas if isinstance(e.payload, Attitude)), None)
+    first_load = next((e.payload for e in meas if isinstance(e.payload, LoadAngle)), None) if load_sensor else None
+    rows: list[tuple[float, ...]] = []
+    if not meas:
+        return rows, {"controller_ran": False}
+    t_init = meas[0].payload.t
+    estimator.initialize(t_init, initial_guess(vehicle, first_pv, first_att, first_load))
+    period = 1.0 / rate
+    next_tick = t_init + period
+    vnow = -math.inf
     last_load = (nan, nan)
     last_pos = (nan, nan, nan)
     last_at: tuple[float, ...] = (nan,) * 5
-    offboard = 0.0
-    vnow = -math.inf
-    next_tick = math.nan
-    period = 1.0 / rate
-    n_ev = len(events)
-    next_prog = 0
-    cmp_angle: list[float] = []
-    cmp_fields: list[tuple[float, ...]] = []
-    ap_angle: list[float] = []
-    last_t = -math.inf
-
-    def estimate_row(t: float, lt: float, src: float) -> tuple[ControlState, tuple[float, ...]]:
-        est = estimator.estimate(t)
-        return est, (t, lt, src, *est.fx, *est.fy, *est[2:], *last_load, *last_pos)
-
+    offboard = nan
+    n = len(events)
     for idx, e in enumerate(events):
-        if progress is not None and idx >= next_prog:
-            progress(idx / n_ev)
-            next_prog = idx + 2000
+        if progress is not None and idx % 4000 == 0:
+            progress(idx / n)
         kind = e.kind
         if kind == "m":
             m = e.payload
             if m.t < t_from or m.t > t_to:
                 continue
-            if not initialized:
-                t_init = m.t
-                estimator.initialize(t_init, initial_guess(vehicle, first_pv, first_att, first_load))
-                initialized = True
-                next_tick = t_init + period
-            if not logged_ticks:
-                # grid ticks: run every tick that the newest sample time has passed, before this sample
-                if m.t > vnow:
-                    vnow = m.t
-                while next_tick <= vnow:
-                    _, row = estimate_row(next_tick, e.lt, 0.0)
-                    rows.append((*row, nan, nan, nan, nan, nan, nan, nan, nan, *nan_sp, *nan_sp, *last_at, offboard))
-                    next_tick += period
+            if m.t > vnow:
+                vnow = m.t
+            while next_tick <= vnow:
+                est = estimator.estimate(next_tick)
+                rows.append((next_tick, nan, e.lt, 0.0, *est.fx, *est.fy, *est[2:], *last_load, *last_pos, *tail,
+                             *last_at, offboard, nan, nan))
+                next_tick += period
             estimator.push(m)
             if isinstance(m, LoadAngle):
                 last_load = (m.alpha_x, m.alpha_y)
@@ -510,44 +793,8 @@ def replay(sc: Scan, inv: dict[str, Any], config: ReplayConfig,
         elif kind == "mode":
             offboard = 1.0 if e.payload else 0.0
         elif kind == "at":
-            q, thr = e.payload
-            last_at = (*q, thr)
-        elif kind == "sp" and logged_ticks and initialized:
-            sp_logged = e.payload[0]
-            if not isinstance(sp_logged, AttitudeTarget if output == "attitude" else ActuatorTarget):
-                continue
-            t = e.vt if e.vt is not None else last_t
-            if t is None or t < t_init or t < t_from or t > t_to or t <= last_t:
-                continue
-            last_t = t
-            est, row = estimate_row(t, e.lt, 1.0)
-            logged = _sp_fields(sp_logged)
-            if scenario is not None:
-                ref = scenario.reference.sample(t - ref_start)
-                cmd, memory = smc.step(t, est, ref.fx, ref.fy, ref.z, ref.psi, memory, params)
-                sp = mapper.map(t, cmd, est)
-                estimator.push_command(t, cmd.thrust, (cmd.tau_phi, cmd.tau_theta, cmd.tau_psi))
-                recomputed = _sp_fields(sp)
-                refs = (ref.fx[0], ref.fy[0], ref.z[0], ref.psi[0])
-                cmds = (cmd.thrust, cmd.tau_phi, cmd.tau_theta, cmd.tau_psi)
-                if output == "attitude":
-                    cmp_angle.append(_quat_angle(recomputed[:4], logged[:4]))
-                    cmp_fields.append(tuple(abs(a - b) for a, b in zip(recomputed[4:], logged[4:])))
-                else:
-                    cmp_fields.append(tuple(abs(a - b) for a, b in zip(recomputed, logged)))
-            else:
-                recomputed = nan_sp
-                refs = (nan,) * 4
-                cmds = (nan,) * 4
-            if output == "attitude" and math.isfinite(last_at[0]):
-                ap_angle.append(_quat_angle(last_at[:4], logged[:4]))
-            rows.append((*row, *refs, *cmds, *recomputed, *logged, *last_at, offboard))
-    if progress is not None:
-        progress(1.0)
-    data = np.array(rows, dtype=float) if rows else np.zeros((0, len(cols)))
-    metrics = _metrics(data, cols, inv, estimator, output, logged_ticks, scenario is not None, cmp_angle,
-                       cmp_fields, ap_angle, config, rate, load_sensor, mapper)
-    return ReplayResult(data, cols, metrics, output)
+            last_at = (*e.payload[0], e.payload[1])
+    return rows, {"controller_ran": False, "t_init": t_init}
 
 
 def _stats(x: np.ndarray) -> dict[str, float | None]:
@@ -559,40 +806,45 @@ def _stats(x: np.ndarray) -> dict[str, float | None]:
 
 
 def _metrics(data: np.ndarray, cols: tuple[str, ...], inv: dict[str, Any], estimator: Any, output: str,
-             logged_ticks: bool, controller_ran: bool, cmp_angle: list[float], cmp_fields: list[tuple[float, ...]],
-             ap_angle: list[float], config: ReplayConfig, rate: float, load_sensor: bool,
-             mapper: Any) -> dict[str, Any]:
+             source: str, extra: dict[str, Any], config: ReplayConfig, rate: float, load_sensor: bool,
+             masks: dict[str, int]) -> dict[str, Any]:
+    """The metrics.json dictionary of a replay (sections: log, estimation, tracking, setpoint_agreement,
+    live_agreement, config)."""
     c = {n: i for i, n in enumerate(cols)}
     col = lambda n: data[:, c[n]]  # noqa: E731 - short accessor
     n = len(data)
     t = col("t") if n else np.zeros(0)
+    e0 = c["Fx"]
     est: dict[str, Any] = {
         "ticks": n,
-        "tick_source": "logged setpoints" if logged_ticks else f"grid at {rate:g} Hz",
+        "tick_source": source,
         "rate_hz": rate,
         "estimator": config.estimator,
         "load_sensor_used": load_sensor,
+        "initialized_at_s": extra.get("t_init"),
         "vehicle_time_span_s": [float(t[0]), float(t[-1])] if n else None,
         "estimator_stats": estimator.stats(),
-        "all_finite": bool(np.all(np.isfinite(data[:, 3:3 + len(EST_COLUMNS)]))) if n else True,
+        "all_finite": bool(np.all(np.isfinite(data[:, e0:e0 + len(EST_COLUMNS)]))) if n else True,
     }
     if n:
         ax, ay = col("alpha_x"), col("alpha_y")
         alpha = np.sqrt(ax * ax + ay * ay)
         est["swing_max_rad"] = float(np.max(alpha))
         est["swing_rms_rad"] = float(np.sqrt(np.mean(alpha * alpha)))
-        if load_sensor:
+        if np.any(np.isfinite(col("meas_alpha_x"))):
             est["alpha_x_vs_sensor"] = _stats(ax - col("meas_alpha_x"))
             est["alpha_y_vs_sensor"] = _stats(ay - col("meas_alpha_y"))
     tracking: dict[str, Any] | None = None
     agreement: dict[str, Any] | None = None
-    if controller_ran and n:
-        m = col("tick_source") == 1.0
+    cmp_fields = extra.get("cmp_fields", [])
+    cmp_angle = extra.get("cmp_angle", [])
+    if extra.get("controller_ran") and n:
         tracking = {"note": "errors of the ESTIMATED flat outputs, height and heading against the reference"}
         for name, a, b in (("e_Fx", "Fx", "Fx_ref"), ("e_Fy", "Fy", "Fy_ref"), ("e_z", "z", "z_ref")):
-            tracking[name] = _stats((col(a) - col(b))[m])
-        tracking["e_psi"] = _stats(np.remainder(col("psi") - col("psi_ref") + math.pi, 2 * math.pi)[m] - math.pi)
-        agreement = {"ticks_compared": len(cmp_fields), "mapper_fallbacks": mapper.fallbacks}
+            tracking[name] = _stats(col(a) - col(b))
+        tracking["e_psi"] = _stats(np.remainder(col("psi") - col("psi_ref") + math.pi, 2 * math.pi) - math.pi)
+        agreement = {"ticks_compared": len(cmp_fields), "mapper_fallbacks": extra["mapper"].fallbacks,
+                     "float32_identical": int(sum(extra.get("cmp_exact", [])))}
         if cmp_fields:
             f = np.asarray(cmp_fields)
             names = SP_ATT[4:] if output == "attitude" else SP_ACT
@@ -600,28 +852,37 @@ def _metrics(data: np.ndarray, cols: tuple[str, ...], inv: dict[str, Any], estim
                 agreement[nm] = _stats(f[:, i])
             if output == "attitude":
                 agreement["attitude_angle_rad"] = _stats(np.asarray(cmp_angle))
-            worst = max(float(np.max(f)), max(cmp_angle) if cmp_angle else 0.0)
-            agreement["max_abs_difference"] = worst
-            agreement["identical_to_1e-9"] = worst <= 1e-9
-    if ap_angle:
+            agreement["max_abs_difference"] = max(float(np.max(f)), max(cmp_angle) if cmp_angle else 0.0)
+    if extra.get("ap_angle"):
         agreement = agreement or {}
-        agreement["logged_vs_autopilot_attitude_target_rad"] = _stats(np.asarray(ap_angle))
+        agreement["logged_vs_autopilot_attitude_target_rad"] = _stats(np.asarray(extra["ap_angle"]))
+    live: dict[str, Any] | None = None
+    if extra.get("live_est"):
+        le = np.asarray(extra["live_est"])
+        live = {"ticks": len(le), "estimate_max_abs_difference": float(np.max(le)),
+                "estimate_identical": int(np.sum(le == 0.0))}
+        if extra.get("live_sp"):
+            ls = np.asarray(extra["live_sp"])
+            live["setpoint_max_abs_difference"] = float(np.max(ls))
+            live["setpoint_identical"] = int(np.sum(ls == 0.0))
+    ref = config.reference
     return {
         "log": inv,
         "estimation": est,
         "tracking": tracking,
         "setpoint_agreement": agreement,
+        "live_agreement": live,
         "config": {
             "vehicle": config.vehicle.name,
             "from_s": config.t_from, "to_s": config.t_to, "output": output, "switching": config.switching,
-            "epsilon": config.epsilon,
-            "reference": None if config.reference is None else {"scenario": config.reference.scenario,
-                                                                 "start_s": config.reference.start},
+            "epsilon": config.epsilon, "delay_s": config.delay_s,
+            "reference": None if ref is None else {"scenario": ref.scenario, "origin": extra.get("origin")},
         },
     }
 
 
 __all__ = [
-    "EST_COLUMNS", "Event", "ReferenceSpec", "ReplayConfig", "ReplayResult", "Scan", "SystemInfo", "columns_for",
-    "initial_guess", "inventory", "is_offboard_mode", "replay", "replayable", "scan", "vehicle_time_of",
+    "EST_COLUMNS", "Event", "LiveRun", "ReferenceSpec", "ReplayConfig", "ReplayResult", "Scan", "SystemInfo",
+    "columns_for", "initial_guess", "inventory", "is_offboard_mode", "load_live_table", "replay", "replayable",
+    "scan", "vehicle_time_of",
 ]
