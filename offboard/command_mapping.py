@@ -34,6 +34,11 @@ Torque -> attitude / body-rate setpoint (``--output attitude``)
       ``e = delta / K_att`` and the rates are the current ``omega``.
     - mask ``rates`` (128): ``omega_sp = omega + delta``, attitude ignored.
 
+    The rate loop's integrator (ratio ``K_i / K_p`` per axis) adds ``K_i / K_p * integral of the P torque``; the
+    mapper runs a copy of it on its own commands (clamped like the autopilot's) and asks the P path only for
+    ``tau - integral``, so that the sum is the commanded torque. Without this the integrator, which sees the
+    deliberate rate error as a disturbance, doubles the low-frequency torque within ``1 / (K_i / K_p)`` seconds.
+
     Neglected: the rate loop's own lag (``1 / B`` = 55 ms) and the motors'; the controller sees them as unmodelled
     actuator dynamics.
 
@@ -67,7 +72,10 @@ class AutopilotModel:
 
     flavour: ``"px4"`` or ``"ardupilot"``; attitude_p: attitude P gains (rad/s per rad, roll, pitch, yaw);
     rate_bandwidth: closed-loop rate bandwidth per axis (1/s); hover_thrust_norm: the autopilot's hover throttle
-    (0..1) or None for the vehicle file's; angle_boost: ArduPilot ATC_ANGLE_BOOST enabled.
+    (0..1) or None for the vehicle file's; angle_boost: ArduPilot ATC_ANGLE_BOOST enabled; rate_integral: the rate
+    loop's integral-to-proportional gain ratio per axis (1/s; PX4 MC_ROLLRATE_I / MC_ROLLRATE_P, defaults
+    0.2 / 0.15, 0.2 / 0.15, 0.1 / 0.2); integral_limit: the rate integrator's limit as a fraction of the axis'
+    maximum torque (PX4 MC_RR_INT_LIM 0.3).
     """
 
     flavour: str = "px4"
@@ -75,6 +83,8 @@ class AutopilotModel:
     rate_bandwidth: tuple[float, float, float] = (18.0, 18.0, 5.0)
     hover_thrust_norm: float | None = None
     angle_boost: bool = True
+    rate_integral: tuple[float, float, float] = (1.33, 1.33, 0.5)
+    integral_limit: float = 0.3
 
     def __post_init__(self) -> None:
         if self.flavour not in ("px4", "ardupilot"):
@@ -160,6 +170,7 @@ class CommandMapper:
         self._last_t: float | None = None
         self._last_thrust: float | None = None
         self._last_torque: tuple[float, float, float] | None = None
+        self._integ = [0.0, 0.0, 0.0]  # model of the autopilot's rate-integrator torque, N m (FLU body axes)
         self.fallbacks = 0
 
     def set_autopilot(self, autopilot: AutopilotModel) -> None:
@@ -167,6 +178,7 @@ class CommandMapper:
         self.autopilot = autopilot
         hn = autopilot.hover_thrust_norm
         self._k_hover = 1.0 if hn is None else hn / self.vehicle.hover_thrust_normalized
+        self._integ = [0.0, 0.0, 0.0]
 
     # ------------------------------------------------------------------------------------------------------
     def thrust_norm(self, thrust_n: float) -> float:
@@ -240,7 +252,13 @@ class CommandMapper:
         c = self.config
         I1, I2, I3 = self._inertia
         kp, bw = ap.attitude_p, ap.rate_bandwidth
-        a = (cmd.tau_phi / I1 / bw[0], cmd.tau_theta / I2 / bw[1], cmd.tau_psi / I3 / bw[2])  # rate step, rad/s
+        ig = self._integ
+        tp = (cmd.tau_phi - ig[0], cmd.tau_theta - ig[1], cmd.tau_psi - ig[2])  # torque asked of the P path, N m
+        a = (tp[0] / I1 / bw[0], tp[1] / I2 / bw[1], tp[2] / I3 / bw[2])  # rate step, rad/s
+        if dt > 0.0:
+            ki, lim, tm = ap.rate_integral, ap.integral_limit, self._tau_max
+            for i in range(3):
+                ig[i] = _clip(ig[i] + ki[i] * tp[i] * dt, -lim * tm[i], lim * tm[i])
         w = euler_rates_to_body(est.phi, est.theta, est.phi_rate, est.theta_rate, est.psi_rate)
         mask = self._mask
         if mask == MASKS["attitude"]:

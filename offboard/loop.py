@@ -51,13 +51,14 @@ import numpy as np
 
 from estimators.control_state import ControlState
 from estimators.flatness import flat_chain, flat_constants, world_tilt
+from estimators.frames import model_euler_to_ned, model_to_ned_vector
 from estimators.measurements import Attitude, LoadAngle, Measurement, PositionVelocity
 from estimators.vehicle import Vehicle
 from offboard import smc
 from offboard.command_mapping import CommandMapper, setpoint_fields
 from offboard.link.connection import MavConnection
 from offboard.link.management import Manager
-from offboard.link.setpoints import SetpointError, encode
+from offboard.link.setpoints import SetpointError, encode, encode_position
 from offboard.link.telemetry import TelemetryDecoder
 
 log = logging.getLogger(__name__)
@@ -245,6 +246,8 @@ class FlightLoop:
         self.last_sp: Any = None
         self.t_vehicle = 0.0
         self._signal: int | None = None
+        #: position + heading (model frame) held with position setpoints before the controller takes over
+        self.goal: tuple[float, float, float, float] | None = None
         self._fd = _fileno(conn)
         self._inject = config.inject_nan
         self._t0_meas = math.inf
@@ -336,9 +339,22 @@ class FlightLoop:
     def _hover_sp(self) -> Any:
         return self.mapper.hover_setpoint(self.last_att.psi if self.last_att is not None else 0.0)
 
+    def _send_goal(self) -> None:
+        assert self.goal is not None
+        x, y, z, psi = self.goal
+        n, e, d = model_to_ned_vector(x, y, z)
+        yaw = model_euler_to_ned(0.0, 0.0, psi)[2]
+        self.stats.sent_bytes += len(self.conn.send(encode_position(self.conn.mav, n, e, d, yaw, self.t_vehicle,
+                                                                    *self.target)))
+        self.last_send_local = time.monotonic()
+
     def stream_hover(self) -> None:
-        """Send one hover setpoint and pace to the loop rate (management's idle callback while streaming)."""
-        self._send(self._hover_sp(), self.t_vehicle)
+        """Send one keep-alive setpoint (the position goal before control starts, else a hover attitude) and pace
+        to the loop rate (management's idle callback while streaming)."""
+        if self.goal is not None:
+            self._send_goal()
+        else:
+            self._send(self._hover_sp(), self.t_vehicle)
         if self.cfg.lockstep:
             self._wait(self.cfg.lockstep_wait_s)
         else:
@@ -360,6 +376,33 @@ class FlightLoop:
             if self._signal is not None:
                 raise _AbortError("signal", f"signal {self._signal} while priming", self.cfg.signal_action)
         self.event("phase", f"primed the setpoint stream: {n} setpoints over {seconds:g} s")
+
+    def _approach(self, settle_s: float = 0.5, timeout_s: float = 30.0) -> None:
+        """Hold the position goal (the reference's start) until the vehicle is within 3 cm, slower than 5 cm/s,
+        with its swing under 0.02 rad, for ``settle_s`` of vehicle time."""
+        assert self.goal is not None
+        gx, gy, gz, _ = self.goal
+        start = self._now_vehicle()
+        settled_since: float | None = None
+        while True:
+            self.stream_hover()
+            now = self._now_vehicle()
+            p, ld = self.last_pos, self.last_load
+            ok = p is not None and math.sqrt((p.x - gx) ** 2 + (p.y - gy) ** 2 + (p.z - gz) ** 2) < 0.03 and \
+                math.sqrt(p.vx * p.vx + p.vy * p.vy + p.vz * p.vz) < 0.05 and \
+                (ld is None or math.hypot(ld.alpha_x, ld.alpha_y) < 0.02)
+            if not ok:
+                settled_since = None
+            elif settled_since is None:
+                settled_since = now
+            elif now - settled_since >= settle_s:
+                self.event("phase", f"at the start of the reference after {now - start:.2f} s")
+                return
+            if now - start > timeout_s:
+                self.event("phase", f"start of the reference not reached within {timeout_s:g} s: starting anyway")
+                return
+            if self._signal is not None:
+                raise _AbortError("signal", f"signal {self._signal} before the flight", self.cfg.signal_action)
 
     def _now_vehicle(self) -> float:
         if self.cfg.lockstep:
@@ -420,14 +463,17 @@ class FlightLoop:
                 if h0 < ref0.z[0] - 0.3:
                     prime = self.stream_hover if self.mgr.flavour == "px4" else self._idle_read
                     self.mgr.takeoff(ref0.z[0], self.home_alt, self.height, idle=prime)
+            assert self.last_pos is not None
+            origin = (self.last_pos.x - ref0.fx[0], self.last_pos.y - ref0.fy[0])
+            self.goal = (self.last_pos.x, self.last_pos.y, ref0.z[0], ref0.psi[0])
             self._prime(self.cfg.prime_s if self.mgr.flavour == "px4" else 0.0)
             if not self.mgr.set_mode("offboard", idle=self.stream_hover):
                 from estimators.errors import UserError
 
                 raise UserError("the autopilot refused offboard control: " + "; ".join(self.conn.statustexts[-3:]))
+            self._approach()
+            self.goal = None
             self.initialize_estimator()
-            assert self.last_pos is not None
-            origin = (self.last_pos.x - ref0.fx[0], self.last_pos.y - ref0.fy[0])
             if self._signal is not None:
                 raise _AbortError("signal", f"signal {self._signal} during start-up", self.cfg.signal_action)
             self.event("phase", "offboard control started")
@@ -633,7 +679,8 @@ def _fileno(conn: MavConnection) -> int | None:
 def _autopilot_dict(mapper: CommandMapper) -> dict[str, Any]:
     a = mapper.autopilot
     return {"flavour": a.flavour, "attitude_p": list(a.attitude_p), "rate_bandwidth": list(a.rate_bandwidth),
-            "hover_thrust_norm": a.hover_thrust_norm, "angle_boost": a.angle_boost}
+            "hover_thrust_norm": a.hover_thrust_norm, "angle_boost": a.angle_boost,
+            "rate_integral": list(a.rate_integral), "integral_limit": a.integral_limit}
 
 
 __all__ = [

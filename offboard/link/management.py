@@ -106,18 +106,24 @@ class Manager:
         if fl == "px4":
             att = ("MC_ROLL_P", "MC_PITCH_P", "MC_YAW_P")
             rate = ("MC_ROLLRATE_P", "MC_PITCHRATE_P", "MC_YAWRATE_P")
+            rate_i = ("MC_ROLLRATE_I", "MC_PITCHRATE_I", "MC_YAWRATE_I")
             hover = "MPC_THR_HOVER"
         else:
             att = ("ATC_ANG_RLL_P", "ATC_ANG_PIT_P", "ATC_ANG_YAW_P")
             rate = ("ATC_RAT_RLL_P", "ATC_RAT_PIT_P", "ATC_RAT_YAW_P")
+            rate_i = ("ATC_RAT_RLL_I", "ATC_RAT_PIT_I", "ATC_RAT_YAW_I")
             hover = "MOT_THST_HOVER"
         default = AutopilotModel(flavour=fl)
         tmax = (vehicle.roll_pitch_torque_max, vehicle.roll_pitch_torque_max, vehicle.yaw_torque_max)
         kp = list(default.attitude_p)
         bw = list(default.rate_bandwidth)
+        ki = list(default.rate_integral)
         for i in range(3):
             a = self.conn.param_get(att[i])
             r = self.conn.param_get(rate[i])
+            ri = self.conn.param_get(rate_i[i])
+            if r is not None and ri is not None and r > 0 and math.isfinite(ri) and ri >= 0:
+                ki[i] = ri / r
             if a is not None and math.isfinite(a) and a > 0:
                 kp[i] = a
             else:
@@ -138,9 +144,11 @@ class Manager:
         if fl == "ardupilot":
             b = self.conn.param_get("ATC_ANGLE_BOOST")
             boost = bool(b) if b is not None else angle_boost_default
-        model = AutopilotModel(fl, (kp[0], kp[1], kp[2]), (bw[0], bw[1], bw[2]), hover_norm, boost)
+        model = AutopilotModel(fl, (kp[0], kp[1], kp[2]), (bw[0], bw[1], bw[2]), hover_norm, boost,
+                               (ki[0], ki[1], ki[2]))
         self.note("autopilot_model", f"attitude P {kp}, rate bandwidth {[round(b, 2) for b in bw]} 1/s, "
-                                     f"hover {hover_norm}, angle boost {boost}")
+                                     f"rate I/P {[round(v, 3) for v in ki]} 1/s, hover {hover_norm}, "
+                                     f"angle boost {boost}")
         return model
 
     def check_vehicle_constants(self, vehicle: Vehicle) -> None:

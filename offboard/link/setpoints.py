@@ -64,6 +64,21 @@ class ActuatorTarget(NamedTuple):
 
 Setpoint = AttitudeTarget | ActuatorTarget
 
+#: SET_POSITION_TARGET_LOCAL_NED type_mask: position + yaw (velocity, acceleration and yaw rate ignored)
+MASK_POSITION_YAW = 8 | 16 | 32 | 64 | 128 | 256 | 2048
+MAV_FRAME_LOCAL_NED = 1
+
+
+def encode_position(mav: Any, north: float, east: float, down: float, yaw: float, time_s: float,
+                    target_system: int, target_component: int) -> Any:
+    """SET_POSITION_TARGET_LOCAL_NED (#84) holding a position (m, NED) and yaw (rad, NED), used only to bring
+    the vehicle to the start of the reference; SetpointError for non-finite values."""
+    if not all(math.isfinite(v) for v in (north, east, down, yaw)):
+        raise SetpointError("non-finite position setpoint")
+    return mav.set_position_target_local_ned_encode(
+        int(max(time_s, 0.0) * 1000.0) & 0xFFFFFFFF, target_system, target_component, MAV_FRAME_LOCAL_NED,
+        MASK_POSITION_YAW, north, east, down, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, yaw, 0.0)
+
 
 class SetpointError(ValueError):
     """A setpoint with NaN / infinity or out-of-range values was about to be encoded."""
@@ -130,6 +145,7 @@ __all__ = [
     "MASKS",
     "MASK_ATTITUDE",
     "MASK_ATTITUDE_RATES",
+    "MASK_POSITION_YAW",
     "MASK_RATES",
     "THROTTLE_IGNORE",
     "ActuatorTarget",
@@ -140,4 +156,5 @@ __all__ = [
     "check_attitude",
     "decode",
     "encode",
+    "encode_position",
 ]

@@ -1,0 +1,165 @@
+"""``slung demo``: one command, no arguments needed. Starts the bundled autopilot emulator (``slung emulate``'s
+public entry point, in a thread of this process) on a free loopback UDP port, flies the ``paper`` scenario end to
+end over real UDP on 127.0.0.1 with the Kalman filter in the loop (the same code as ``slung fly``), prints the
+metrics table and writes a report folder (figures, metrics, tlog) whose path it prints.
+
+Usage::
+
+    slung demo [--flavor px4|ardupilot] [--realtime] [--output attitude|actuator] [--duration S] [--rate HZ]
+               [--out DIR]
+
+Lockstep by default (the emulator advances one control period per setpoint, so the run does not depend on the
+machine's speed); ``--realtime`` paces both by the wall clock. The emulator runs in this process only so that the
+report can show the TRUE plant state (tracking errors, swing) beside the estimate: the controller never sees it,
+and the two sides talk only MAVLink over UDP. Default folder: ``runs/demo-<UTC timestamp>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from estimators.errors import UserError
+from offboard.fly_cli import add_flight_arguments, fly
+from offboard.outputs import prepare_output_dir, write_json_atomic
+from offboard.sim_cli import positive_float
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``slung demo`` (all optional)."""
+    p.add_argument("--flavor", "--flavour", dest="flavor", choices=("px4", "ardupilot"), default="px4",
+                   help="autopilot the emulator imitates (default px4)")
+    p.add_argument("--realtime", action="store_true", help="pace by the wall clock instead of lockstep")
+    p.add_argument("--scenario", default="paper", help="scenario to fly (default paper)")
+    p.add_argument("--duration", type=positive_float, metavar="S", help="offboard flight time (default: scenario's)")
+    p.add_argument("--noise", type=float, default=0.0,
+                   help="emulator telemetry noise scale (0: exact telemetry, 1: typical EKF / IMU noise)")
+    p.add_argument("--attitude-model", choices=("rigid", "paper"), default="rigid",
+                   help="emulated plant rotation model (default rigid)")
+    p.add_argument("--loss", type=float, default=0.0, help="emulated packet loss probability, both directions")
+    add_flight_arguments(p, demo=True)
+    p.add_argument("--out", metavar="DIR", help="report folder (default runs/demo-<timestamp>)")
+
+
+def free_udp_port() -> int:
+    """A UDP port on 127.0.0.1 that was free a moment ago."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+    finally:
+        s.close()
+
+
+class EmulatorThread:
+    """The bundled emulator (``sim_bridge.emulator_cli.build``) running in a daemon thread."""
+
+    def __init__(self, flavor: str, port: int, *, lockstep: bool, period: float, vehicle: str | None,
+                 attitude_model: str, noise: float, loss: float, tlog: Path | None) -> None:
+        from sim_bridge import emulator_cli
+
+        argv = ["--flavor", flavor, "--mavlink", f"udpout:127.0.0.1:{port}",
+                "--lockstep" if lockstep else "--realtime", "--lockstep-period", repr(period),
+                "--attitude-model", attitude_model, "--noise", repr(noise)]
+        if lockstep:
+            argv += ["--lockstep-grace", "0.1"]
+        if loss > 0.0:
+            argv += ["--loss-in", repr(loss), "--loss-out", repr(loss)]
+        if vehicle:
+            argv += ["--vehicle", vehicle]
+        if tlog is not None:
+            argv += ["--tlog", str(tlog)]
+        parser = argparse.ArgumentParser()
+        emulator_cli.configure(parser)
+        self.args = parser.parse_args(argv)
+        self.emu, self.ap, self.link = emulator_cli.build(self.args)
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._run, name="slung-emulator", daemon=True)
+
+    def _run(self) -> None:
+        try:
+            self.emu.run(None)
+        except BaseException as exc:  # reported by stop()
+            self.error = exc
+
+    def start(self) -> EmulatorThread:
+        """Start the emulator thread."""
+        self.thread.start()
+        return self
+
+    def truth(self, t: float) -> tuple[list[float], float]:
+        """The plant state (18 floats, model frame) and cable tension (N) right now (metrics only)."""
+        from sim_bridge.dynamics import tension
+
+        emu = self.emu
+        x = list(emu.x)
+        return x, float(tension(x, list(emu.u), emu.p))
+
+    def stop(self) -> dict[str, Any]:
+        """Stop, join, close the link; the emulator's summary."""
+        self.emu.stop()
+        self.thread.join(timeout=10.0)
+        summary = {**self.ap.summary(), **self.emu.summary(), "link": self.link.summary()}
+        self.link.close()
+        if self.error is not None:
+            raise RuntimeError(f"the emulator failed: {self.error!r}")
+        return summary
+
+
+def default_out_dir() -> Path:
+    """runs/demo-<UTC timestamp>."""
+    return Path("runs") / ("demo-" + time.strftime("%Y%m%d-%H%M%S", time.gmtime()))
+
+
+def run_demo(args: argparse.Namespace, *, inject: tuple[tuple[str, float, float], ...] = (),
+             quiet: bool = False) -> tuple[dict[str, Any], Path, dict[str, Any]]:
+    """Do the demo; returns (metrics, report folder, emulator summary). Used by tests."""
+    if args.flavor == "ardupilot" and args.output == "actuator":
+        raise UserError("ArduPilot has no actuator-control setpoint (SET_ACTUATOR_CONTROL_TARGET is PX4 <= v1.13): "
+                        "use --output attitude with --flavor ardupilot")
+    if not (0.0 <= args.loss < 1.0):
+        raise UserError(f"--loss must be in [0, 1), got {args.loss!r}")
+    if not (0.0 <= args.noise <= 10.0):
+        raise UserError(f"--noise must be in [0, 10], got {args.noise!r}")
+    out = prepare_output_dir(args.out or default_out_dir())
+    args.out = str(out)
+    lockstep = not args.realtime
+    port = free_udp_port()
+    emu = EmulatorThread(args.flavor, port, lockstep=lockstep, period=1.0 / args.rate, vehicle=args.vehicle,
+                         attitude_model=args.attitude_model, noise=args.noise, loss=args.loss,
+                         tlog=out / "emulator.tlog")
+    fly_args = argparse.Namespace(**vars(args))
+    fly_args.connect = f"udpin:127.0.0.1:{port}"
+    fly_args.trajectory = None
+    old_switch = sys.getswitchinterval()
+    if not lockstep:
+        sys.setswitchinterval(0.0002)  # two real-time loops share the interpreter
+    emu.start()
+    summary: dict[str, Any] = {}
+    try:
+        m, folder = fly(fly_args, lockstep=lockstep, truth_probe=emu.truth, inject=inject, quiet=quiet)
+    finally:
+        sys.setswitchinterval(old_switch)
+        summary = emu.stop()
+    write_json_atomic(folder / "emulator.json", summary)
+    m["emulator"] = {k: summary.get(k) for k in ("flavor", "mode", "armed", "sim_time_s", "realtime_factor",
+                                                  "lockstep_handshakes", "counters")}
+    write_json_atomic(folder / "metrics.json", m)
+    return m, folder, summary
+
+
+def run(args: argparse.Namespace) -> int:
+    """Entry point of ``slung demo``: 0 when the scenario was flown to its end with finite values."""
+    m, folder, summary = run_demo(args)
+    ok = m.get("flight", {}).get("ended_by") == "completed" and m.get("all_finite", False)
+    print(f"emulator: {summary.get('flavor')} ended in {summary.get('mode')}, "
+          f"{summary.get('sim_time_s', math.nan):.1f} s simulated")
+    print(json.dumps({"report": str(folder.resolve())}))
+    return 0 if ok else 1
