@@ -13,7 +13,7 @@ method (``filterpy.common.van_loan_discretization``) from the diagonal continuou
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 from filterpy.common import van_loan_discretization
@@ -38,7 +38,7 @@ class LinearBlock:
     _CACHE_LIMIT = 4096
     #: discretizations shared by every block with the same model (a run builds one filter per process, but
     #: tests and benchmarks build many): model bytes -> step key -> Discrete
-    _SHARED: dict[bytes, dict[int, Discrete]] = {}
+    _SHARED: ClassVar[dict[bytes, dict[int, Discrete]]] = {}
 
     def __init__(self, a: np.ndarray, b: Sequence[float], q_c: Sequence[float], batch: int) -> None:
         self.a = np.asarray(a, dtype=float)
