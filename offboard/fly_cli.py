@@ -27,7 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from estimators.cable import cable_from_planar
+from estimators.cable import cable_from_planar, planar_swing
+from estimators.flatness import flat_chain, flat_constants, world_tilt
 from estimators.errors import UserError
 from estimators.vehicle import Vehicle, load_vehicle
 from offboard import metrics as metrics_mod
@@ -199,6 +200,7 @@ def to_sim_log(result: FlightResult, scenario: Scenario, vehicle: Vehicle, rate_
     L = LIVE_COL
     min_tension = math.inf
     slack = 0
+    kc = flat_constants(vehicle)
     for k in range(n):
         r = rows[k]
         if has_truth:
@@ -234,10 +236,14 @@ def to_sim_log(result: FlightResult, scenario: Scenario, vehicle: Vehicle, rate_
         row[51:54] = (x[0] + ell * r1, x[1] + ell * r2, x[2] + ell * r3)
         est = r[L["est_fx0"]:L["est_alpha_y_rate"] + 1]
         if has_truth:
-            row[COL["est_alpha_x"]] = est[20] - ax_t
-            row[COL["est_alpha_y"]] = est[21] - ay_t
-            row[COL["est_Fx0"]] = est[0] - Fx
-            row[COL["est_Fy0"]] = est[6] - Fy
+            sa_y, sa_x, sa_yd, sa_xd = planar_swing(x[12], x[13], x[14], x[15], x[16], x[17])
+            nx, ny, nxd, nyd = world_tilt(x[6], x[7], x[8], x[9], x[10], x[11])
+            tfx = flat_chain(kc, x[0], x[3], sa_y, sa_yd, nx, nxd)
+            tfy = flat_chain(kc, x[1], x[4], sa_x, sa_xd, ny, nyd)
+            row[COL["est_alpha_x"]:COL["est_alpha_y_rate"] + 1] = (est[20] - sa_x, est[21] - sa_y,
+                                                                   est[22] - sa_xd, est[23] - sa_yd)
+            row[COL["est_Fx0"]:COL["est_Fx5"] + 1] = [est[i] - tfx[i] for i in range(6)]
+            row[COL["est_Fy0"]:COL["est_Fy5"] + 1] = [est[6 + i] - tfy[i] for i in range(6)]
             row[COL["est_z"]] = est[12] - x[2]
             row[COL["est_psi"]] = math.remainder(est[16] - x[8], 2.0 * math.pi)
         else:
