@@ -335,16 +335,18 @@ class PositionController:
         ax = self.xy_vel_p * ex + self.int_x
         ay = self.xy_vel_p * ey + self.int_y
         az = self.z_vel_p * ez + self.int_z
-        self.int_x = min(max(self.int_x + self.xy_vel_i * ex * dt, -2.0), 2.0)
-        self.int_y = min(max(self.int_y + self.xy_vel_i * ey * dt, -2.0), 2.0)
-        self.int_z = min(max(self.int_z + self.z_vel_i * ez * dt, -4.0), 4.0)
         g = self.g
-        az = max(az, -0.8 * g)
-        # tilt limit
+        # anti-windup: integrate only while the output is not limited
+        if -0.8 * g < az < g and abs(ez) < 0.5:  # and only near the setpoint (no wind-up while braking)
+            self.int_z = min(max(self.int_z + self.z_vel_i * ez * dt, -4.0), 4.0)
+        az = min(max(az, -0.8 * g), g)
         hmax = math.tan(self.tilt_max) * (g + az)
         ha = math.hypot(ax, ay)
         if ha > hmax:
             ax, ay = ax * hmax / ha, ay * hmax / ha
+        elif abs(ex) < 0.5 and abs(ey) < 0.5:
+            self.int_x = min(max(self.int_x + self.xy_vel_i * ex * dt, -2.0), 2.0)
+            self.int_y = min(max(self.int_y + self.xy_vel_i * ey * dt, -2.0), 2.0)
         tx, ty, tz = ax, ay, g + az
         n = math.sqrt(tx * tx + ty * ty + tz * tz)
         thrust = n / g * hover_norm

@@ -166,6 +166,7 @@ class Autopilot:
         self.z_target = 0.0
         self.rtl_phase = 0
         self.takeoff_alt = 2.5
+        self.braking = False
         self.guided_sub = "hold"  # AP GUIDED: hold | att | pos | takeoff | timeout
         self.failsafe = False
         # inner-loop outputs
@@ -313,6 +314,7 @@ class Autopilot:
         self.hold_pos = (x[0], x[1], max(x[2], 0.0))
         self.hold_yaw = x[8]
         self.z_target = max(x[2], 0.0)
+        self.braking = not self.on_ground
         self.failsafe = bool(reason)
         if mode.kind == "rtl":
             self.rtl_phase = 0
@@ -799,6 +801,13 @@ class Autopilot:
             self._guided(x, dt, on_ground)
             return
         if kind == "hold":
+            if self.braking:  # like PX4 Hold / ArduPilot BRAKE: stop first, then hold where stopped
+                if x[3] * x[3] + x[4] * x[4] + x[5] * x[5] < 0.09:
+                    self.braking = False
+                    self.hold_pos = (x[0], x[1], max(x[2], 0.0))
+                else:
+                    self._position(x, (None, None, None), (0.0, 0.0, 0.0), self.hold_yaw, dt, on_ground)
+                    return
             self._position(x, self.hold_pos, (0.0, 0.0, 0.0), self.hold_yaw, dt, on_ground)
         elif kind == "althold":
             self._althold(x, self.z_target, 0.0, self.hold_yaw, dt, on_ground)
@@ -876,7 +885,8 @@ class Autopilot:
         vz = vz_ff + pc.z_p * (z_sp - x[2])
         vz = min(max(vz, -pc.z_speed_down), pc.z_speed_up)
         e = vz - x[5]
-        pc.int_z = min(max(pc.int_z + pc.z_vel_i * e * dt, -4.0), 4.0)
+        if abs(e) < 0.5:  # integrate near the setpoint only (no wind-up while braking or climbing)
+            pc.int_z = min(max(pc.int_z + pc.z_vel_i * e * dt, -4.0), 4.0)
         a = pc.z_vel_p * e + pc.int_z
         g = self.vehicle.gravity
         return (g + max(a, -0.8 * g)) / g * self.hover_norm
@@ -927,7 +937,9 @@ class Autopilot:
             else:
                 self._track_attitude(x, self.sp_q, thrust_n, self.sp_yaw_ff)
             return
-        if sub == "timeout":
+        if sub == "timeout":  # level, zero climb rate: stop the vertical motion, then hold that height
+            if abs(x[5]) > 0.2:
+                self.z_target = x[2]
             self._althold(x, self.z_target, 0.0, self.hold_yaw, dt, on_ground)
             return
         if sub == "pos":

@@ -50,6 +50,7 @@ class Emu:
                *args]
         self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         self.summary: dict[str, Any] | None = None
+        self.texts: list[str] = []  # every STATUSTEXT seen by recv()
 
     @property
     def mav(self) -> Any:
@@ -67,20 +68,47 @@ class Emu:
 
     def recv(self, types: str | list[str], timeout: float = 2.0, cond: Any = None, sysid: int = 1) -> Any:
         """Next message of the given type(s) from ``sysid`` (and satisfying ``cond``), or None on timeout."""
+        wanted = (types,) if isinstance(types, str) else tuple(types)
         end = time.monotonic() + timeout
         while True:
             left = end - time.monotonic()
             if left <= 0:
                 return None
-            m = self.conn.recv_match(type=types, blocking=True, timeout=left)
+            m = self.conn.recv_match(blocking=True, timeout=left)
             if m is None:
                 return None
-            if m.get_srcSystem() == sysid and (cond is None or cond(m)):
+            t = m.get_type()
+            if t == "STATUSTEXT":
+                self.texts.append(m.text)
+            if t in wanted and m.get_srcSystem() == sysid and (cond is None or cond(m)):
                 return m
+
+    def drain(self) -> None:
+        """Read everything queued (STATUSTEXTs are kept in ``texts``)."""
+        while True:
+            m = self.conn.recv_match(blocking=False)
+            if m is None:
+                return
+            if m.get_type() == "STATUSTEXT":
+                self.texts.append(m.text)
+
+    def latest(self, name: str, sysid: int = 1, timeout: float = 2.0) -> Any:
+        """Drain what is queued and return the newest message of a type (waiting for one if none is queued)."""
+        last = None
+        while True:
+            m = self.conn.recv_match(blocking=False)
+            if m is None:
+                break
+            if m.get_type() == "STATUSTEXT":
+                self.texts.append(m.text)
+            if m.get_type() == name and m.get_srcSystem() == sysid:
+                last = m
+        return last if last is not None else self.recv(name, timeout, sysid=sysid)
 
     def command(self, cmd: int, *params: float, target: int = 1, timeout: float = 2.0) -> Any:
         """COMMAND_LONG and its COMMAND_ACK (or None)."""
         p = [*params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0][:7]
+        self.drain()  # a full socket buffer would drop the answer
         self.mav.command_long_send(target, 1, cmd, 0, *p)
         return self.recv("COMMAND_ACK", timeout, cond=lambda m: m.command == cmd)
 
