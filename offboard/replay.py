@@ -309,15 +309,30 @@ def replayable(inv: dict[str, Any]) -> tuple[bool, list[str]]:
 
 @dataclass(frozen=True)
 class ReferenceSpec:
-    """The reference a logged flight used: the scenario's name. ``start`` (s): the vehicle time at which the
-    reference's t = 0 fell (only used when the live run's own tick log is not available; otherwise the tick log's
-    controller time ``t_ref`` is used). ``origin``: the horizontal shift (m, world NWU) the live loop added to the
-    reference's F_x, F_y, or None to recompute it as the loop does (vehicle position at the start minus the
-    reference's start)."""
+    """The reference a logged flight used: the scenario's name (or a trajectory file). ``start``: the vehicle time
+    (s) at which the reference's t = 0 fell, NaN = at the first replayed tick (ignored with the live run's tick log,
+    whose controller time ``t_ref`` is used). ``origin``: the horizontal shift (m, world NWU) the live loop added
+    to the reference's F_x, F_y, or None to recompute it as the loop does (vehicle position at the start minus
+    the reference's start)."""
 
     scenario: str
-    start: float = 0.0
+    start: float = math.nan
     origin: tuple[float, float] | None = None
+    trajectory: str | None = None
+
+    def build(self) -> Any:
+        """The reference object (``offboard.reference``): the named scenario's or the trajectory file's."""
+        if self.trajectory is not None:
+            from offboard.reference import load_trajectory_file
+
+            return load_trajectory_file(self.trajectory)
+        from offboard.scenarios import make_scenario
+
+        return make_scenario(self.scenario).reference
+
+
+class LiveLogMismatchError(ValueError):
+    """The live tick log given to the replay does not belong to the tlog."""
 
 
 @dataclass(frozen=True)
@@ -484,20 +499,20 @@ def _plan_from_live(meas_pos: list[int], sp_events: list[tuple[int, Event]], liv
     measurement stream of the first pushed measurement and the ticks."""
     n = len(live.t_vehicle)
     if n == 0:
-        raise ValueError("the live tick log is empty")
+        raise LiveLogMismatchError("the live tick log is empty")
     nsp = 8 if output == "attitude" else 4
     want = tuple(_f32(float(v)) for v in live.sp[0, :nsp])
     j0 = next((j for j, (_, e) in enumerate(sp_events) if _sp_fields(e.payload[0]) == want), None)
     if j0 is None:
-        raise ValueError("the live tick log does not match this tlog (its first setpoint is not in the log)")
+        raise LiveLogMismatchError("the live tick log does not match this tlog (its first setpoint is not in the log)")
     if j0 + n > len(sp_events):
-        raise ValueError(f"the live tick log has {n} ticks but the tlog only {len(sp_events) - j0} setpoints after "
-                         "the first one")
+        raise LiveLogMismatchError(f"the live tick log has {n} ticks but the tlog only {len(sp_events) - j0} "
+                                   "setpoints after the first one")
     first_idx = sp_events[j0][0]
     before = bisect.bisect_left(meas_pos, first_idx)
     start = before - int(live.n_meas[0])
     if start < 0:
-        raise ValueError("the live tick log counts more measurements than the tlog holds")
+        raise LiveLogMismatchError("the live tick log counts more measurements than the tlog holds")
     ticks = []
     for k in range(n):
         e = sp_events[j0 + k][1]
@@ -506,50 +521,74 @@ def _plan_from_live(meas_pos: list[int], sp_events: list[tuple[int, Event]], liv
     return start, ticks
 
 
+def _is_hover(sp: Any) -> bool:
+    """Whether a setpoint is the live loop's hover setpoint (level, zero rates / torques): what it streams before
+    offboard control starts and after it ends, never a controller output in practice."""
+    if isinstance(sp, AttitudeTarget):
+        return sp.q[1] == 0.0 and sp.q[2] == 0.0 and sp.roll_rate == 0.0 and sp.pitch_rate == 0.0 \
+            and sp.yaw_rate == 0.0
+    return sp.roll == 0.0 and sp.pitch == 0.0 and sp.yaw == 0.0
+
+
 def _plan_from_setpoints(events: list[Event], meas_pos: list[int], meas: list[Any],
-                         sp_events: list[tuple[int, Event]], output: str) -> tuple[int, list[_Tick]]:
-    """Ticks from the logged setpoints alone (no live tick log): the offboard segment starts at the first setpoint
-    after the HEARTBEAT that reports offboard mode (the loop's start), or at the first setpoint when the log has
-    no mode information; the filter is initialized from the telemetry logged before that first tick; controller
-    time from the setpoint's own time field (SET_ATTITUDE_TARGET: whole ms, snapped to the loop period when the
-    ticks are regular), vehicle time = that of the newest measurement at the first tick + controller time.
-    Approximate by construction: exact only when the live loop ticked exactly so."""
+                         sp_events: list[tuple[int, Event]], output: str, rate_hz: float) -> tuple[int, list[_Tick]]:
+    """Ticks from the logged setpoints alone (no live tick log), following ``offboard.loop.FlightLoop``:
+
+    - the controlled segment is the run of setpoints that are not hover setpoints (:func:`_is_hover`), after the
+      HEARTBEAT reporting offboard mode when the log has one; the filter is initialized from the telemetry
+      logged before its first setpoint;
+    - each tick's vehicle time is the newest SYSTEM_TIME marker before its setpoint when the autopilot sends one
+      per tick (the lockstep emulator's handshake; a tick without a new marker is the previous tick + 1 /
+      ``rate_hz``, as the loop does), else the newest sample time before the first tick plus the setpoint's time
+      field (whole ms for SET_ATTITUDE_TARGET, snapped to the tick period when regular);
+    - controller time ``t_ref = t_v - t0`` with ``t0`` the newest marker before the first tick (lockstep), else
+      the newest sample time before it.
+
+    Exact for lockstep runs of the loop; approximate otherwise (the loop's real-time tick times are not on the
+    wire: use its tick log, ``timeseries_live.csv``, for an exact replay)."""
     on_idx = next((i for i, e in enumerate(events) if e.kind == "mode" and e.payload), None)
-    off_idx = None
-    if on_idx is not None:
-        off_idx = next((i for i, e in enumerate(events) if i > on_idx and e.kind == "mode" and not e.payload), None)
-    sel = [(i, e) for i, e in sp_events if (on_idx is None or i > on_idx) and (off_idx is None or i < off_idx)]
-    if not sel:
+    cand = [(i, e) for i, e in sp_events if on_idx is None or i > on_idx]
+    k0 = next((k for k, (_, e) in enumerate(cand) if not _is_hover(e.payload[0])), None)
+    if k0 is None:
         return 0, []
+    k1 = next((k for k in range(k0, len(cand)) if _is_hover(cand[k][1].payload[0])), len(cand))
+    sel = cand[k0:k1]
     start = bisect.bisect_left(meas_pos, sel[0][0])  # the filter starts from what was known at the first tick
     t_newest = max((m.t for m in meas[:start]), default=0.0)
     times = [e.payload[1].time_boot_ms * 1e-3 if output == "attitude" else e.payload[1].time_usec * 1e-6
              for _, e in sel]
-    # vehicle time of each tick: the newest SYSTEM_TIME marker before it when the autopilot sends one per tick
-    # (the lockstep emulator's handshake: exactly the loop's tick time), else the first tick's newest sample time
-    # plus the setpoint's time field (whole ms for SET_ATTITUDE_TARGET, snapped to the loop period when regular)
+    period = 1.0 / rate_hz
+    if len(times) > 2:
+        d = np.diff(np.asarray(times))
+        d = d[d > 0]
+        if len(d) and abs(float(np.median(d)) - period) > 0.0011:
+            period = float(np.median(d))
+    if output == "attitude" and period >= 0.002 and all(
+            abs(t / period - round(t / period)) * period <= 0.0011 for t in times[: min(len(times), 500)]):
+        times = [round(t / period) * period for t in times]
     clock_pos = [i for i, e in enumerate(events) if e.kind == "clock"]
-    n_clock = sum(1 for i in clock_pos if sel[0][0] - 1 <= i <= sel[-1][0]) if clock_pos else 0
+    n_clock = sum(1 for i in clock_pos if sel[0][0] <= i <= sel[-1][0]) if clock_pos else 0
     t_vs: list[float] = []
-    if n_clock >= 0.9 * len(sel):
+    if n_clock >= 0.9 * (len(sel) - 1):
+        # lockstep: the loop takes t0 from the newest marker when control starts; the emulator only advances on a
+        # setpoint, so the first tick finds no new marker and runs at the predicted t0 + period
+        c0 = bisect.bisect_left(clock_pos, sel[0][0]) - 1
+        t0 = t_newest if c0 < 0 else events[clock_pos[c0]].payload
+        last_c = c0
         for i, _ in sel:
             c = bisect.bisect_left(clock_pos, i) - 1
-            t_vs.append(events[clock_pos[c]].payload if c >= 0 else math.nan)
+            if c == last_c or c < 0:
+                t_vs.append(t_vs[-1] + period if t_vs else t0 + period)
+            else:
+                t_vs.append(events[clock_pos[c]].payload)
+            last_c = c
     else:
-        period = 0.0
-        if len(times) > 2:
-            d = np.diff(np.asarray(times))
-            d = d[d > 0]
-            period = float(np.median(d)) if len(d) else 0.0
-        if output == "attitude" and period >= 0.002 and all(
-                abs(t / period - round(t / period)) * period <= 0.0011 for t in times[: min(len(times), 500)]):
-            times = [round(t / period) * period for t in times]
+        t0 = t_newest
         t_vs = [t_newest + t for t in times]
-    t0 = t_vs[0]
     ticks = []
     last = -math.inf
     for (i, e), t_v in zip(sel, t_vs):
-        if not t_v > last:  # the same marker twice (a lost one) or out of order: not a new tick
+        if not t_v >= last:  # out of order (the loop may tick twice at one time, never backwards)
             continue
         last = t_v
         n_push = bisect.bisect_left(meas_pos, i) - start
@@ -580,7 +619,7 @@ def replay(sc: Scan, inv: dict[str, Any], config: ReplayConfig,
         start, ticks = _plan_from_live(meas_pos, sp_events, config.live, output)
         source = "live tick log"
     elif sp_events:
-        start, ticks = _plan_from_setpoints(events, meas_pos, meas, sp_events, output)
+        start, ticks = _plan_from_setpoints(events, meas_pos, meas, sp_events, output, config.rate_hz)
         source = "logged setpoints"
     else:
         start, ticks = 0, []
@@ -639,17 +678,18 @@ def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], sta
         t_init = ticks[0].t_v
     estimator.initialize(t_init, initial_guess(vehicle, pos, att, load))
 
-    scenario = None
+    reference = None
     ox = oy = 0.0
+    t_shift = 0.0  # 0: controller time from the tick plan; NaN: from the reference's given start
     if config.reference is not None:
-        from offboard.scenarios import make_scenario
-
-        scenario = make_scenario(config.reference.scenario)
+        reference = config.reference.build()
         if config.reference.origin is not None:
             ox, oy = config.reference.origin
         elif pos is not None:
-            r0 = scenario.reference.sample(0.0)
+            r0 = reference.sample(0.0)
             ox, oy = pos.x - r0.fx[0], pos.y - r0.fy[0]
+        if config.live is None and math.isfinite(config.reference.start):
+            t_shift = math.nan  # controller time from the given start: t_ref = t_v - start
     params = smc.ControllerParams.for_vehicle(vehicle, switching=config.switching, epsilon=config.epsilon)
     mask = config.mask
     if mask is None:
@@ -705,11 +745,12 @@ def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], sta
             else:
                 offboard = 1.0 if e.payload else 0.0
             si += 1
-        t_v, t_ref = tk.t_v, tk.t_ref
+        t_v = tk.t_v
+        t_ref = tk.t_ref if t_shift == 0.0 else t_v - config.reference.start  # type: ignore[union-attr]
         est = estimator.estimate(t_v)
         logged = tk.logged
-        if scenario is not None:
-            ref = scenario.reference.sample(t_ref)
+        if reference is not None:
+            ref = reference.sample(t_ref)
             rfx = (ref.fx[0] + ox, *ref.fx[1:])
             rfy = (ref.fy[0] + oy, *ref.fy[1:])
             cmd, memory = step(t_ref, est, rfx, rfy, ref.z, ref.psi, memory, params)
@@ -732,14 +773,14 @@ def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], sta
             le = live.est[tk.live]
             d_est = max(abs(a - b) for a, b in zip((*est.fx, *est.fy, *est[2:]), le))
             live_est.append(d_est)
-            if scenario is not None:
+            if reference is not None:
                 d_sp = max(abs(a - b) for a, b in zip(recomputed, live.sp[tk.live, :nsp]))
                 live_sp.append(d_sp)
         if output == "attitude" and math.isfinite(last_at[0]):
             ap_angle.append(_quat_angle(last_at[:4], logged[:4]))
         rows.append((t_v, t_ref, tk.lt, 1.0, *est.fx, *est.fy, *est[2:], *last_load, *last_pos, *refs, *cmds,
                      *recomputed, *logged, *last_at, offboard, d_est, d_sp))
-    extra: dict[str, Any] = {"controller_ran": scenario is not None, "origin": [ox, oy], "mapper": mapper,
+    extra: dict[str, Any] = {"controller_ran": reference is not None, "origin": [ox, oy], "mapper": mapper,
                              "cmp_angle": cmp_angle, "cmp_fields": cmp_fields, "cmp_exact": cmp_exact,
                              "ap_angle": ap_angle, "live_est": live_est, "live_sp": live_sp,
                              "t_init": t_init, "start_index": start}
@@ -882,7 +923,7 @@ def _metrics(data: np.ndarray, cols: tuple[str, ...], inv: dict[str, Any], estim
 
 
 __all__ = [
-    "EST_COLUMNS", "Event", "LiveRun", "ReferenceSpec", "ReplayConfig", "ReplayResult", "Scan", "SystemInfo",
-    "columns_for", "initial_guess", "inventory", "is_offboard_mode", "load_live_table", "replay", "replayable",
-    "scan", "vehicle_time_of",
+    "EST_COLUMNS", "Event", "LiveLogMismatchError", "LiveRun", "ReferenceSpec", "ReplayConfig", "ReplayResult",
+    "Scan", "SystemInfo", "columns_for", "initial_guess", "inventory", "is_offboard_mode", "load_live_table",
+    "replay", "replayable", "scan", "vehicle_time_of",
 ]

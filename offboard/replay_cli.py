@@ -54,8 +54,11 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="ignore the log's cable-angle sensor (estimate the swing from the accelerometer)")
     p.add_argument("--scenario", metavar="NAME",
                    help="reference the logged flight used (default: from the run's metrics.json beside the log)")
+    p.add_argument("--trajectory", metavar="FILE", help="trajectory file the logged flight used (TOML)")
     p.add_argument("--reference-start", type=_time, metavar="T",
-                   help="controller time (s) at which the scenario's t = 0 fell (with --scenario)")
+                   help="vehicle time (s) at which the reference began (default: the first offboard setpoint)")
+    p.add_argument("--no-live-log", action="store_true",
+                   help="ignore the live run's timeseries_live.csv beside the log (replay from the tlog alone)")
     p.add_argument("--switching", choices=("sign", "smooth"), default=None,
                    help="controller switching function (default: the run's, else smooth)")
     p.add_argument("--no-figures", action="store_true", help="write metrics and time series only")
@@ -63,41 +66,60 @@ def configure(p: argparse.ArgumentParser) -> None:
 
 def run_metadata(tlog: Path) -> dict[str, Any]:
     """The live run's settings from ``metrics.json`` beside the tlog (written by ``slung fly`` / ``slung demo``),
-    or {} when there is none or it cannot be read."""
+    or {} when there is none, it cannot be read, or it is a replay's own metrics."""
     path = tlog.parent / "metrics.json"
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return {}
-    return data if isinstance(data, dict) else {}
+    if not isinstance(data, dict) or "replayed" in data or "scenario" not in data:
+        return {}
+    return data
 
 
-def build_config(args: argparse.Namespace, meta: dict[str, Any]) -> Any:
-    """The :class:`offboard.replay.ReplayConfig` from the options, completed by the run's metadata."""
+def build_config(args: argparse.Namespace, meta: dict[str, Any], live: Any = None) -> Any:
+    """The :class:`offboard.replay.ReplayConfig` from the options, completed by the live run's metadata
+    (``metrics.json`` of ``slung fly`` / ``slung demo``: scenario, switching, epsilon, output, mask, autopilot
+    model, reference origin, rate) and its tick log ``live`` when present."""
     from offboard.replay import ReferenceSpec, ReplayConfig
 
     vehicle = load_vehicle(args.vehicle)
     cfg = meta.get("config", {}) if isinstance(meta.get("config"), dict) else {}
-    loop = meta.get("loop", {}) if isinstance(meta.get("loop"), dict) else {}
-    reference = None
     scenario = args.scenario or meta.get("scenario")
-    start = args.reference_start
-    if start is None:
-        start = loop.get("reference_start_s", cfg.get("reference_start_s"))
-    if args.scenario is not None and args.reference_start is None and start is None:
-        raise UserError("--scenario needs --reference-start (the controller time at which the scenario began)")
-    if scenario is not None and start is not None:
-        reference = ReferenceSpec(str(scenario), float(start))
+    reference = None
+    if scenario is not None:
+        scenario = str(scenario)
+        if scenario.startswith("trajectory:") and not args.trajectory:
+            scenario = None  # a trajectory file was flown: it must be given again
+    if args.trajectory:
+        reference = ReferenceSpec("trajectory", trajectory=str(args.trajectory))
+    elif scenario is not None:
+        from offboard.scenarios import SCENARIOS
+
+        if scenario not in SCENARIOS:
+            raise UserError(f"unknown scenario {scenario!r} (known: {', '.join(SCENARIOS)})")
+        reference = ReferenceSpec(scenario)
+    if reference is not None:
+        origin = cfg.get("origin_xy") if not args.scenario and not args.trajectory else None
+        start = args.reference_start  # else the tick plan's own controller time (the loop's t - t0)
+        reference = ReferenceSpec(reference.scenario, float(start) if start is not None else math.nan,
+                                  tuple(origin) if isinstance(origin, list) and len(origin) == 2 else None,
+                                  reference.trajectory)
     if args.t_from is not None and args.t_to is not None and args.t_to <= args.t_from:
         raise UserError(f"--to ({args.t_to:g} s) must be after --from ({args.t_from:g} s)")
     switching = args.switching or cfg.get("switching") or "smooth"
     epsilon = cfg.get("epsilon") or 1.0
+    autopilot = cfg.get("autopilot") if isinstance(cfg.get("autopilot"), dict) else None
+    load_sensor: bool | None = None
+    if args.no_load_sensor:
+        load_sensor = False
+    elif meta:
+        load_sensor = bool(cfg.get("estimator_load_sensor", True))  # slung fly builds its filter with one
+    rate = float(cfg.get("rate_hz") or args.rate) if meta else args.rate
     return ReplayConfig(
-        vehicle=vehicle, t_from=args.t_from, t_to=args.t_to, rate_hz=args.rate,
-        load_sensor=False if args.no_load_sensor else None, reference=reference,
-        switching=switching, epsilon=float(epsilon),
-        output=cfg.get("output"), mask=cfg.get("mask"), flavour=cfg.get("flavour") or cfg.get("flavor"),
-        hover_thrust_norm=cfg.get("hover_thrust_norm"),
+        vehicle=vehicle, t_from=args.t_from, t_to=args.t_to, rate_hz=rate, load_sensor=load_sensor,
+        reference=reference, switching=switching, epsilon=float(epsilon), output=cfg.get("output"),
+        mask=cfg.get("mask"), autopilot=autopilot, live=live,
     )
 
 
@@ -133,7 +155,7 @@ def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
         raise UserError(f"{path} is empty: not a tlog")
     tty = sys.stderr.isatty()
     wall0 = time.perf_counter()
-    reader = TlogReader.from_path(path, progress=(lambda f: None))
+    reader = TlogReader.from_path(path)
     big = reader.stats.bytes_total > 2_000_000
     bar = _progress_bar() if tty and big else None
     if bar is not None:
@@ -143,7 +165,11 @@ def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
     if rstats["packets"] == 0:
         raise UserError(f"{path} is not a tlog: no MAVLink packet with a valid checksum behind an 8-byte timestamp "
                         f"in {rstats['bytes_total']} bytes")
-    config = build_config(args, run_metadata(path))
+    meta = run_metadata(path)
+    live = None
+    if meta and not args.no_live_log:
+        live = rp.load_live_table(path.parent / "timeseries_live.csv")
+    config = build_config(args, meta, live)
     out_dir = prepare_output_dir(args.out or path.with_name(path.stem + "-replay"))
     inv = rp.inventory(sc)
     ok, reasons = rp.replayable(inv)
@@ -155,7 +181,10 @@ def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
         print(f"not replayed: {'; '.join(reasons)}")
         print(f"report: {out_dir.resolve()}")
         return EXIT_NOT_REPLAYABLE, metrics, out_dir
-    result = rp.replay(sc, inv, config, progress=(lambda f: bar(0.5 + 0.5 * f)) if bar else None)
+    try:
+        result = rp.replay(sc, inv, config, progress=(lambda f: bar(0.5 + 0.5 * f)) if bar else None)
+    except rp.LiveLogMismatchError as exc:
+        raise UserError(f"{path.parent / 'timeseries_live.csv'}: {exc} (use --no-live-log)") from None
     wall = time.perf_counter() - wall0
     result.metrics["reader"] = rstats
     result.metrics["replayed"] = True

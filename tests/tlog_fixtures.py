@@ -165,9 +165,10 @@ def offboard_log(seconds: float = 3.0, rate_hz: float = 250.0, output: str = "at
             mode = PX4_OFFBOARD if t_us >= switch_us else 3 << 16
             msgs.append(mav.heartbeat_encode(2, 12, 1 | 128, mode, 4))
         snap = src.snapshot(vt, x, u)
+        paused = ready and t_us <= switch_us + tick_us  # lockstep: no telemetry until the first setpoint
         for hz, builder in ((250.0, msg_attitude), (50.0, msg_local_position_ned), (250.0, msg_highres_imu),
                             (50.0, msg_debug_vect)):
-            if _due(t_us, hz, dt_us):
+            if _due(t_us, hz, dt_us) and not paused:
                 msgs.append(builder(mav, snap, _Ctx))
         for i, m in enumerate(msgs):
             buf = m.pack(mav)
@@ -185,17 +186,23 @@ def offboard_log(seconds: float = 3.0, rate_hz: float = 250.0, output: str = "at
             sp = mapper.hover_setpoint(att.psi if att is not None else 0.0)  # type: ignore[attr-defined]
             out += encode_record(lt + 100, encode(gcs, sp, 0.0, 1, 1).pack(gcs))
         else:
-            # the lockstep marker: SYSTEM_TIME with the tick's vehicle time in whole ms (as the emulator sends)
-            marker = mav.system_time_encode(EPOCH_US + t_us, vt // 1000)
-            out += encode_record(lt + 90, marker.pack(mav))
+            # the lockstep marker: SYSTEM_TIME with the tick's vehicle time in whole ms (as the emulator sends, except
+            # before the first controller tick: the emulator only advances on a setpoint)
+            if not (ready and t_us == switch_us + tick_us):
+                marker = mav.system_time_encode(EPOCH_US + t_us, vt // 1000)
+                out += encode_record(lt + 90, marker.pack(mav))
             t_v = (vt // 1000) * 1e-3
-            if not ready:
+            if ready and t_us == switch_us + tick_us:
+                t_v = t0 + tick_us * 1e-6  # the loop's first tick finds no new marker: predicted time
+            if not ready:  # the loop: initialize, take t0 from this marker, tick from the next one on
                 a, pv = last["Attitude"], last["PositionVelocity"]
                 est_f.initialize(max(a.t, pv.t), initial_guess(v, pv, a, last.get("LoadAngle")))  # type: ignore
                 ready = True
                 t0 = t_v
                 r0s = ref.sample(0.0)
                 origin = (pv.x - r0s.fx[0], pv.y - r0s.fy[0])  # type: ignore[attr-defined]
+                x = dynamics.rk4_step(x, u, p, dt_us * 1e-6, t_us * 1e-6)
+                continue
             t_ref = t_v - t0
             est = est_f.estimate(t_v)
             r = ref.sample(t_ref)
