@@ -14,8 +14,9 @@ Design (``docs/estimation.md`` gives the derivation, the observability argument 
       n'' = Rz(psi) [tau_theta / I_theta, -tau_phi / I_phi]
 
   so ``[p, v, a, a', n, n']`` maps one-to-one and linearly onto the flat-output chain (F, ..., F^(5)).
-- **Heading block** ``[psi, psi']`` driven by ``tau_psi / I_psi``; **height block** ``[z, z', d_z]`` driven by
-  ``u cos(phi) cos(theta) / M_t - g``.
+- **Heading block** ``[psi, psi']`` driven by ``tau_psi / I_psi``; **height block** ``[z, z', d_z, b_z]`` driven by
+  the vehicle's vertical acceleration ``(u n_3 + T r_3) / M - g`` evaluated at the estimate (thrust direction
+  from the tilt, cable direction and tension from the swing estimate).
 - Measurements: position/velocity (p, v, z, z'), attitude (tilt n and its rate from the Euler angles and the
   body rates converted to Euler rates, heading and its rate), accelerometer (horizontal specific force in
   the heading frame ``= (T / M)(a + n) + d + b``, with ``T / M = (m / M) f_z`` from its own vertical
@@ -31,12 +32,12 @@ Design (``docs/estimation.md`` gives the derivation, the observability argument 
   of one update together) and the gate reopens after ``gate_reopen`` consecutive rejections of one stream so
   that a filter that has drifted away (e.g. after a long sensor silence) recovers.
 
-Filter state ordering (:meth:`KalmanEstimator.covariance`, 21 x 21, block diagonal)::
+Filter state ordering (:meth:`KalmanEstimator.covariance`, 22 x 22, block diagonal)::
 
     0-7   x axis: p_x, v_x, alpha_y, alpha_y', n_x, n_x', d_x, b_x
     8-15  y axis: p_y, v_y, alpha_x, alpha_x', n_y, n_y', d_y, b_y
     16-17 psi, psi'
-    18-20 z, z', d_z
+    18-21 z, z', d_z, b_z
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
+from estimators.cable import cable_from_planar
 from estimators.control_state import ControlState
 from estimators.flatness import flat_chain, flat_constants, planar_state, world_tilt
 from estimators.frames import wrap_angle
@@ -58,7 +60,7 @@ from estimators.vehicle import Vehicle
 _DEG = math.pi / 180.0
 #: command input columns of each block (horizontal x and y, heading, height) and its slice of the output
 _INPUT = (slice(0, 2), slice(2, 3), slice(3, 4))
-_SLICE = (slice(0, 16), slice(16, 18), slice(18, 21))
+_SLICE = (slice(0, 16), slice(16, 18), slice(18, 22))
 _UPDATES = {
     "state": LinearBlock.update_state,
     "states": LinearBlock.update_states,
@@ -69,7 +71,7 @@ STATE_NAMES: tuple[str, ...] = (
     "p_x", "v_x", "alpha_y", "alpha_y_rate", "n_x", "n_x_rate", "d_x", "b_x",
     "p_y", "v_y", "alpha_x", "alpha_x_rate", "n_y", "n_y_rate", "d_y", "b_y",
     "psi", "psi_rate",
-    "z", "z_rate", "d_z",
+    "z", "z_rate", "d_z", "b_z",
 )
 #: indices in one horizontal axis
 IP, IV, IA, IAD, IN, IND, ID, IB = range(8)
@@ -100,7 +102,7 @@ class Tuning:
     q_b: float = 1e-7  # (m/s^3)^2/Hz, random walk of the accelerometer bias
     q_psi: float = 0.005  # (rad/s^2)^2/Hz
     q_vz: float = 3e-4  # (m/s^2)^2/Hz
-    q_dz: float = 0.3  # (m/s^3)^2/Hz
+    q_dz: float = 0.05  # (m/s^3)^2/Hz
     prior_pos: float = 0.05
     prior_vel: float = 0.1
     prior_swing: float = 0.15
@@ -148,6 +150,7 @@ class KalmanEstimator:
         M, m, l, g = vehicle.mass_vehicle, vehicle.mass_load, vehicle.cable_length, vehicle.gravity
         Mt = M + m
         self._Mt, self._g, self._m_over_M = Mt, g, m / M
+        self._M, self._m, self._l = M, m, l
         self._inv_inertia = tuple(1.0 / i for i in vehicle.inertia)
 
         a = np.zeros((8, 8))
@@ -164,13 +167,13 @@ class KalmanEstimator:
         b[IND] = 1.0
         self._hb = LinearBlock(a, b, (0.0, tn.q_v, 0.0, tn.q_a, 0.0, tn.q_n, tn.q_d, tn.q_b), batch=2)
         self._yb = LinearBlock(np.array([[0.0, 1.0], [0.0, 0.0]]), (0.0, 1.0), (0.0, tn.q_psi), batch=1)
-        self._zb = LinearBlock(
-            np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]]), (0.0, 1.0, 0.0), (0.0, tn.q_vz, tn.q_dz),
-            batch=1,
-        )
+        az = np.zeros((4, 4))
+        az[0, 1] = az[1, 2] = 1.0
+        self._zb = LinearBlock(az, (0.0, 1.0, 0.0, 0.0), (0.0, tn.q_vz, tn.q_dz, tn.q_b), batch=1)
         self._blocks = (self._hb, self._yb, self._zb)
         for blk in self._blocks:  # warm the cache with the control step
             blk.discrete(1.0 / rate_hz)
+        self._accz_row = np.array((0.0, 0.0, 1.0, 1.0))
         self._acc_row = np.zeros(8)
         self._acc_row[[ID, IB]] = 1.0
         self._gate = {dof: float(chi2.ppf(tn.gate_probability, dof)) for dof in (1, 2, 4)}
@@ -201,11 +204,11 @@ class KalmanEstimator:
         hp = np.diag(np.square(sd))
         yx = np.array([[guess.psi, guess.psi_rate]])
         yp = np.diag([tn.prior_psi**2, tn.prior_psi_rate**2])
-        zx = np.array([[guess.z, guess.z_rate, 0.0]])
-        zp = np.diag([tn.prior_z**2, tn.prior_z_rate**2, tn.prior_dz**2])
+        zx = np.array([[guess.z, guess.z_rate, 0.0, 0.0]])
+        zp = np.diag([tn.prior_z**2, tn.prior_z_rate**2, tn.prior_dz**2, tn.prior_bias**2])
         # delayed state per block: [time, means (batch, n), shared covariance (n, n)]
         self._core = [[float(t), hx, hp], [float(t), yx, yp], [float(t), zx, zp]]
-        # output: the 21 means in STATE_NAMES order
+        # output: the 22 means in STATE_NAMES order
         self._out = np.concatenate((hx.ravel(), yx.ravel(), zx.ravel()))
         self._t_out = float(t)
         self._pending: list[tuple[float, int, Measurement]] = []
@@ -213,7 +216,7 @@ class KalmanEstimator:
         self._latest_t = -math.inf
         # command history: (time, (horizontal input (2,), heading input (1,), height input (1,)))
         self._cmds: list[tuple[float, np.ndarray]] = [(float(t), np.zeros(4))]
-        self._gated_run = {"pos": 0, "z": 0, "tilt": 0, "psi": 0, "acc": 0, "load": 0}
+        self._gated_run = {"pos": 0, "z": 0, "tilt": 0, "psi": 0, "acc": 0, "acc_z": 0, "load": 0}
         self._fz = self._g
         self._last_good = guess
         self._initialized = True
@@ -256,14 +259,21 @@ class KalmanEstimator:
         cp, sp = math.cos(psi), math.sin(psi)
         ip, it, iy = self._inv_inertia
         ttheta, tphi = torque[1] * it, -torque[0] * ip  # accelerations of (theta, -phi)
-        # tilt of the output estimate (world tilt -> theta, phi) for the vertical thrust component
-        nx, ny = float(out[IN]), float(out[8 + IN])
+        # vertical acceleration of the vehicle at the output estimate: (u n3 + T r3) / M - g, with the thrust
+        # direction n from the tilt and the cable direction r from the swing estimate (sphere form, errata E16)
+        o = out.tolist()
+        nx, ny = o[IN], o[8 + IN]
         theta, phi = nx * cp + ny * sp, nx * sp - ny * cp
+        sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
+        n1, n2, n3 = sf * sp + cf * cp * st, cf * sp * st - cp * sf, cf * ct
+        (r1, r2, r3), (d1, d2, d3) = cable_from_planar(o[IA], o[8 + IA], o[IAD], o[8 + IAD])
+        M, m, l = self._M, self._m, self._l
+        tension = m * (M * l * (d1 * d1 + d2 * d2 + d3 * d3) - thrust * (n1 * r1 + n2 * r2 + n3 * r3)) / self._Mt
         w = np.array((
             cp * ttheta - sp * tphi,
             sp * ttheta + cp * tphi,
             torque[2] * iy,
-            thrust * math.cos(phi) * math.cos(theta) / self._Mt - self._g,
+            (thrust * n3 + tension * r3) / M - self._g,
         ))
         cmds = self._cmds
         if cmds[-1][0] >= t:
@@ -297,13 +307,13 @@ class KalmanEstimator:
         return est
 
     def covariance(self) -> np.ndarray:
-        """Covariance (21 x 21, ordering :data:`STATE_NAMES`) of the filter state at the last output time."""
-        out = np.zeros((21, 21))
+        """Covariance (22 x 22, ordering :data:`STATE_NAMES`) of the filter state at the last output time."""
+        out = np.zeros((22, 22))
         ps = self._output_covariances()
         out[0:8, 0:8] = ps[0]
         out[8:16, 8:16] = ps[0]
         out[16:18, 16:18] = ps[1]
-        out[18:21, 18:21] = ps[2]
+        out[18:22, 18:22] = ps[2]
         return out
 
     def nees(self, t: float, truth: ControlState) -> float:
@@ -371,6 +381,14 @@ class KalmanEstimator:
         if k:
             del cmds[:k]
 
+    def _active_command(self, t: float) -> np.ndarray:
+        """The command inputs in force at time ``t`` (s)."""
+        cmds = self._cmds
+        j = len(cmds) - 1
+        while j > 0 and cmds[j][0] > t:
+            j -= 1
+        return cmds[j][1]
+
     def _advance_output(self, t: float) -> None:
         cmds = self._cmds
         t0 = self._t_out
@@ -392,21 +410,21 @@ class KalmanEstimator:
         self._t_out = t
 
     def _output_model(self, h: float) -> tuple[np.ndarray, np.ndarray]:
-        """Block-diagonal (Phi^T (21, 21), Gamma^T (4, 21)) of all 21 output means for a step ``h`` (cached)."""
+        """Block-diagonal (Phi^T (22, 22), Gamma^T (4, 22)) of all 22 output means for a step ``h`` (cached)."""
         key = round(h * 1e7)
         mdl = self._out_cache.get(key)
         if mdl is None:
-            phi_t = np.zeros((21, 21))
-            gamma_t = np.zeros((4, 21))
+            phi_t = np.zeros((22, 22))
+            gamma_t = np.zeros((4, 22))
             dh, dy, dz = (blk.discrete(h) for blk in self._blocks)
             phi_t[0:8, 0:8] = dh.phi_t
             phi_t[8:16, 8:16] = dh.phi_t
             phi_t[16:18, 16:18] = dy.phi_t
-            phi_t[18:21, 18:21] = dz.phi_t
+            phi_t[18:22, 18:22] = dz.phi_t
             gamma_t[0, 0:8] = dh.gamma
             gamma_t[1, 8:16] = dh.gamma
             gamma_t[2, 16:18] = dy.gamma
-            gamma_t[3, 18:21] = dz.gamma
+            gamma_t[3, 18:22] = dz.gamma
             if len(self._out_cache) >= 4096:
                 self._out_cache.clear()
             mdl = self._out_cache[key] = (phi_t, gamma_t)
@@ -486,6 +504,15 @@ class KalmanEstimator:
             row[IN] = gain
             z = (cp * m.ax - sp * m.ay, sp * m.ax + cp * m.ay)
             ok &= self._update(0, "acc", "row", row, z, r["acc"], 2)
+            # vertical: the world-vertical specific force minus g is z'' = (commanded part) + d_z, plus b_z
+            self._advance_core(2, t)
+            hx = self._core[0][1]
+            nx, ny = float(hx[0, IN]), float(hx[1, IN])
+            theta, phi = nx * cp + ny * sp, nx * sp - ny * cp
+            ct = math.cos(theta)
+            fz_world = -math.sin(theta) * m.ax + ct * math.sin(phi) * m.ay + ct * math.cos(phi) * m.az
+            w_z = float(self._active_command(self._core[2][0])[3])
+            ok &= self._update(2, "acc_z", "row", self._accz_row, (fz_world - self._g - w_z,), r["acc"], 1)
         elif isinstance(m, LoadAngle):
             self._advance_core(0, t)
             ok &= self._update(0, "load", "state", IA, (m.alpha_y, m.alpha_x), r["load"], 2)
