@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 
 from estimators.cable import cable_from_planar, planar_swing
-from estimators.flatness import flat_chain, flat_constants, world_tilt
 from estimators.errors import UserError
+from estimators.flatness import flat_chain, flat_constants, world_tilt
 from estimators.vehicle import Vehicle, load_vehicle
 from offboard import metrics as metrics_mod
 from offboard import smc

@@ -35,7 +35,7 @@ SIGNALS = ("e_Fx", "e_Fy", "e_z", "alpha")
 FLOOR = 0.003
 
 
-def demo_args(tmp_path, *extra: str) -> argparse.Namespace:  # noqa: ANN001
+def demo_args(tmp_path, *extra: str) -> argparse.Namespace:
     p = argparse.ArgumentParser()
     configure(p)
     return p.parse_args(["--duration", str(DURATION), "--no-figures", "--out", str(tmp_path / "demo"), *extra])
@@ -51,7 +51,7 @@ def sim_metrics() -> dict:
     return metrics_mod.compute(sim_mod.run(sc, v, params, cfg))
 
 
-def wire_setpoints(tlog_path) -> list:  # noqa: ANN001
+def wire_setpoints(tlog_path) -> list:
     """Every setpoint message we sent, parsed back from the bytes in flight.tlog."""
     log = mavutil.mavlink_connection(str(tlog_path))
     out = []
@@ -61,7 +61,7 @@ def wire_setpoints(tlog_path) -> list:  # noqa: ANN001
 
 
 @pytest.mark.parametrize(("flavor", "output"), [("px4", "attitude"), ("px4", "actuator"), ("ardupilot", "attitude")])
-def test_demo_lockstep_matches_sim(tmp_path, sim_metrics, flavor: str, output: str) -> None:  # noqa: ANN001
+def test_demo_lockstep_matches_sim(tmp_path, sim_metrics, flavor: str, output: str) -> None:
     m, folder, emu = run_demo(demo_args(tmp_path, "--flavor", flavor, "--output", output), quiet=True)
     assert m["flight"]["ended_by"] == "completed" and m["completed"] and m["all_finite"]
     assert m["flight"]["truth_source"] == "emulator truth"
@@ -78,12 +78,12 @@ def test_demo_lockstep_matches_sim(tmp_path, sim_metrics, flavor: str, output: s
     assert kinds == {"SET_ATTITUDE_TARGET" if output == "attitude" else "SET_ACTUATOR_CONTROL_TARGET"}
     assert len(sps) >= m["loop"]["ticks"]
     for s in sps:
-        vals = list(s.q) + [s.thrust] if output == "attitude" else list(s.controls)
+        vals = [*list(s.q), s.thrust] if output == "attitude" else list(s.controls)
         assert all(math.isfinite(v) for v in vals)
     raw = (folder / "flight.tlog").read_bytes()
     assert struct.unpack(">Q", raw[:8])[0] > 1_600_000_000 * 10**6  # QGC header: us since the epoch
 
 
-def test_ardupilot_actuator_output_is_refused(tmp_path) -> None:  # noqa: ANN001
+def test_ardupilot_actuator_output_is_refused(tmp_path) -> None:
     with pytest.raises(UserError, match="ArduPilot has no actuator"):
         run_demo(demo_args(tmp_path, "--flavor", "ardupilot", "--output", "actuator"), quiet=True)
