@@ -1,0 +1,231 @@
+"""slung replay: exact reproduction of live runs (slung demo and a generated offboard flight), the log inventory and
+its "what is missing" reports, robustness to damaged logs, exit codes."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from tlog_fixtures import LogSpec, flight_log, offboard_log, write_live_table
+
+from offboard import replay as rp
+from offboard.cli import main
+from offboard.tlog import TlogReader
+
+
+def _replay_cli(tlog: Path, out: Path, *extra: str) -> tuple[int, dict]:
+    code = main(["replay", str(tlog), "--out", str(out), *extra])
+    return code, json.loads((out / "metrics.json").read_text())
+
+
+def _csv_columns(path: Path) -> dict[str, np.ndarray]:
+    with open(path, encoding="utf-8") as fh:
+        rows = list(csv.reader(fh))
+    data = np.array([[float(v) for v in r] for r in rows[1:]])
+    return {name: data[:, i] for i, name in enumerate(rows[0])}
+
+
+# ------------------------------------------------------------------------------------------ slung demo, exact ---
+
+@pytest.fixture(scope="module")
+def demo_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Two short `slung demo` flights (PX4 flavour, attitude and actuator output) recorded for the replay."""
+    out = {}
+    for output in ("attitude", "actuator"):
+        d = tmp_path_factory.mktemp(f"demo-{output}")
+        assert main(["demo", "--duration", "1.5", "--output", output, "--no-figures", "--out", str(d)]) == 0
+        out[output] = d
+    return out
+
+
+@pytest.mark.parametrize("output", ["attitude", "actuator"])
+def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
+        demo_runs: dict[str, Path], output: str, tmp_path: Path) -> None:
+    run = demo_runs[output]
+    code, m = _replay_cli(run / "flight.tlog", tmp_path / "r")
+    assert code == 0
+    live = _csv_columns(run / "timeseries_live.csv")
+    rep = _csv_columns(tmp_path / "r" / "timeseries.csv")
+    n = len(live["t_vehicle"])
+    assert n > 300 and len(rep["t"]) == n
+    # the replay's own time series against the live loop's, column by column, bit for bit
+    np.testing.assert_array_equal(rep["t"], live["t_vehicle"])
+    pairs = [("Fx", "est_fx0"), ("Fx_d5", "est_fx5"), ("Fy_d3", "est_fy3"), ("z", "est_z"), ("psi", "est_psi"),
+             ("alpha_x", "est_alpha_x"), ("alpha_y_rate", "est_alpha_y_rate"), ("cmd_thrust", "cmd_thrust"),
+             ("cmd_tau_theta", "cmd_tau_theta")]
+    sp_names = ("q_w", "q_x", "q_y", "q_z", "roll_rate", "pitch_rate", "yaw_rate", "thrust") \
+        if output == "attitude" else ("roll", "pitch", "yaw", "thrust")
+    pairs += [("sp_" + name, f"sp{i}") for i, name in enumerate(sp_names)]
+    for a, b in pairs:
+        np.testing.assert_array_equal(rep[a], live[b], err_msg=f"{a} vs {b}")
+    assert m["live_agreement"]["estimate_identical"] == n
+    assert m["live_agreement"]["setpoint_identical"] == n
+    # what went over the wire (float32) is what the replay recomputes, rounded to float32
+    assert m["setpoint_agreement"]["float32_identical"] == m["setpoint_agreement"]["ticks_compared"] == n
+    assert m["log"]["has_offboard_segment"] and m["log"]["autopilot"] == "px4"
+
+
+def test_replay_of_slung_demo_from_the_tlog_alone(demo_runs: dict[str, Path], tmp_path: Path) -> None:
+    """Without the live tick log the ticks are rebuilt from the lockstep markers and the setpoints in the tlog."""
+    run = demo_runs["attitude"]
+    code, m = _replay_cli(run / "flight.tlog", tmp_path / "r", "--no-live-log")
+    assert code == 0
+    live = _csv_columns(run / "timeseries_live.csv")
+    rep = _csv_columns(tmp_path / "r" / "timeseries.csv")
+    assert m["live_agreement"] is None
+    assert m["setpoint_agreement"]["float32_identical"] == len(live["t_vehicle"])
+    np.testing.assert_array_equal(rep["t_ref"], live["t_ref"])
+    np.testing.assert_array_equal(rep["Fx_d4"], live["est_fx4"])
+
+
+# --------------------------------------------------------------------------------- generated offboard flights ---
+
+@pytest.mark.parametrize("output", ["attitude", "actuator"])
+def test_generated_offboard_flight_is_reproduced_with_and_without_its_tick_log(output: str, tmp_path: Path) -> None:
+    data, live_rows = offboard_log(seconds=1.5, output=output)
+    sc = rp.scan(TlogReader(data))
+    inv = rp.inventory(sc)
+    write_live_table(tmp_path / "live.csv", live_rows)
+    live = rp.load_live_table(tmp_path / "live.csv")
+    assert live is not None
+    ref = rp.ReferenceSpec("hover")
+    for cfg in (rp.ReplayConfig(reference=ref, live=live), rp.ReplayConfig(reference=ref)):
+        res = rp.replay(sc, inv, cfg)
+        est = res.data[:, res.columns.index("Fx"):res.columns.index("Fx") + 24]
+        np.testing.assert_array_equal(est, np.array([r[3:27] for r in live_rows]))
+        ag = res.metrics["setpoint_agreement"]
+        assert ag["float32_identical"] == ag["ticks_compared"] == len(live_rows)
+    # the swing the filter estimated follows the cable-angle sensor
+    assert res.metrics["estimation"]["alpha_x_vs_sensor"]["rms"] < 0.01
+
+
+def test_a_tick_log_from_another_flight_is_refused(tmp_path: Path) -> None:
+    data, _ = offboard_log(seconds=0.6)
+    _, other = offboard_log(seconds=0.6, scenario="circle")
+    sc = rp.scan(TlogReader(data))
+    write_live_table(tmp_path / "live.csv", [(*r[:27], *(v + 0.1 for v in r[27:])) for r in other])
+    cfg = rp.ReplayConfig(reference=rp.ReferenceSpec("hover"), live=rp.load_live_table(tmp_path / "live.csv"))
+    with pytest.raises(rp.LiveLogMismatchError):
+        rp.replay(sc, rp.inventory(sc), cfg)
+
+
+def test_damaged_offboard_log_still_replays(tmp_path: Path) -> None:
+    data, live_rows = offboard_log(seconds=1.0)
+    rng = np.random.default_rng(21)
+    buf = bytearray(data)
+    for pos in rng.choice(len(buf), size=30, replace=False):
+        buf[pos] ^= 0x5A
+    path = tmp_path / "damaged.tlog"
+    path.write_bytes(bytes(buf[: len(buf) - 7]))  # and cut inside the last packet
+    code, m = _replay_cli(path, tmp_path / "r", "--scenario", "hover")
+    assert code == 0
+    r = m["reader"]
+    assert r["bad_crc"] + r["resyncs"] > 0 and r["truncated"] == 1
+    assert m["estimation"]["all_finite"]
+    assert 0.9 * len(live_rows) <= m["estimation"]["ticks"] <= len(live_rows)
+
+
+# ------------------------------------------------------------------------------------ inventory and reports ---
+
+def test_inventory_of_a_clean_log() -> None:
+    sc = rp.scan(TlogReader(flight_log(LogSpec(seconds=2.0))))
+    inv = rp.inventory(sc)
+    assert inv["autopilot"] == "px4" and inv["vehicle_type"] == "quadrotor" and inv["autopilot_sysid"] == 1
+    assert inv["has_load_sensor"] and inv["has_local_position"] and inv["has_imu"]
+    assert inv["missing"] == []
+    rates = inv["systems"][0]["rates_hz"]
+    assert rates["ATTITUDE"] == pytest.approx(250.0, rel=0.01)
+    assert rates["LOCAL_POSITION_NED"] == pytest.approx(50.0, rel=0.02)
+    assert inv["message_counts"]["HEARTBEAT"] == 3
+
+
+def test_log_without_heartbeat_is_replayed_from_its_attitude_telemetry(tmp_path: Path) -> None:
+    path = tmp_path / "nohb.tlog"
+    path.write_bytes(flight_log(LogSpec(seconds=2.0, heartbeat=False)))
+    code, m = _replay_cli(path, tmp_path / "r")
+    assert code == 0
+    assert m["log"]["autopilot_sysid"] == 1 and m["log"]["autopilot"] is None
+    assert any("no HEARTBEAT" in s for s in m["log"]["missing"])
+    assert m["estimation"]["ticks"] > 400
+
+
+def test_log_without_a_load_sensor_is_estimated_from_the_imu(tmp_path: Path) -> None:
+    path = tmp_path / "noload.tlog"
+    path.write_bytes(flight_log(LogSpec(seconds=2.0, load=False)))
+    code, m = _replay_cli(path, tmp_path / "r")
+    assert code == 0
+    assert not m["log"]["has_load_sensor"] and not m["estimation"]["load_sensor_used"]
+    assert any("cable-angle sensor" in s for s in m["log"]["missing"])
+    assert m["estimation"]["all_finite"]
+
+
+def test_sensorless_swing_estimate_follows_the_sensor_it_ignores(tmp_path: Path) -> None:
+    path = tmp_path / "a.tlog"
+    path.write_bytes(flight_log(LogSpec(seconds=4.0)))
+    code, m = _replay_cli(path, tmp_path / "r", "--no-load-sensor")
+    assert code == 0 and not m["estimation"]["load_sensor_used"]
+    assert m["estimation"]["swing_max_rad"] > 0.1
+    assert m["estimation"]["alpha_x_vs_sensor"]["rms"] < 0.02
+    assert m["estimation"]["alpha_y_vs_sensor"]["rms"] < 0.02
+
+
+@pytest.mark.parametrize(("spec", "reason"), [
+    (LogSpec(seconds=1.0, mav_type=1), "not a multirotor"),
+    (LogSpec(seconds=1.0, local_position=False), "no local position"),
+])
+def test_unusable_logs_get_a_report_and_exit_code_3(spec: LogSpec, reason: str, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "x.tlog"
+    path.write_bytes(flight_log(spec))
+    code, m = _replay_cli(path, tmp_path / "r")
+    assert code == 3
+    assert m["replayed"] is False and any(reason in r for r in m["reasons"])
+    assert reason in capsys.readouterr().out
+    assert not (tmp_path / "r" / "timeseries.csv").exists()
+
+
+def test_mavlink1_log_replays(tmp_path: Path) -> None:
+    path = tmp_path / "v1.tlog"
+    path.write_bytes(flight_log(LogSpec(seconds=2.0, mavlink1=True)))
+    code, m = _replay_cli(path, tmp_path / "r")
+    assert code == 0 and m["reader"]["mavlink1"] == m["reader"]["packets"] > 0
+    assert m["estimation"]["alpha_y_vs_sensor"]["rms"] < 0.01
+    for name in ("swing.png", "flat_outputs.png"):
+        assert (tmp_path / "r" / name).stat().st_size > 1000
+
+
+def test_time_window(tmp_path: Path) -> None:
+    path = tmp_path / "a.tlog"
+    path.write_bytes(flight_log(LogSpec(seconds=3.0)))  # vehicle time 12 .. 15 s
+    code, m = _replay_cli(path, tmp_path / "r", "--from", "13", "--to", "14")
+    assert code == 0 and m["config"]["from_s"] == 13.0
+    t = _csv_columns(tmp_path / "r" / "timeseries.csv")["t"]
+    assert t.min() >= 13.0 and t.max() <= 14.0 and len(t) > 200
+
+
+def test_offboard_modes_of_both_autopilots() -> None:
+    assert rp.is_offboard_mode(12, 6 << 16, 1 | 128)
+    assert not rp.is_offboard_mode(12, 3 << 16, 1)
+    assert rp.is_offboard_mode(3, 4, 1) and rp.is_offboard_mode(3, 20, 1)
+    assert not rp.is_offboard_mode(3, 5, 1) and not rp.is_offboard_mode(3, 4, 0)
+
+
+@pytest.mark.parametrize("content", [b"", b"time,x\n1,2\n" * 40, bytes(range(256)) * 8])
+def test_empty_or_non_tlog_file_is_a_one_line_error(content: bytes, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "x.tlog"
+    path.write_bytes(content)
+    assert main(["replay", str(path), "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("slung replay: error:") and "\n" not in err and "tlog" in err
+
+
+def test_missing_file_and_bad_window_are_usage_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["replay", str(tmp_path / "nope.tlog")]) == 2
+    path = tmp_path / "a.tlog"
+    path.write_bytes(flight_log(LogSpec(seconds=0.5)))
+    assert main(["replay", str(path), "--from", "5", "--to", "4", "--out", str(tmp_path / "r")]) == 2
+    assert "--to" in capsys.readouterr().err
