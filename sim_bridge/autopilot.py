@@ -1042,6 +1042,18 @@ class Autopilot:
         snap = self.tel.snapshot(self.t_us, self.x, self.u)
         mav.send(BUILDERS[name](mav, snap, self))
 
+    def rephase(self) -> None:
+        """Lockstep streaming (re)starts: restart every stream's period and the inner-loop decimation at the
+        current step boundary, so what a controller sees does not depend on how long the emulator free-ran."""
+        t = self.t_us
+        for s in self.streams.values():
+            if s[0]:
+                s[1] = t + s[0]
+        for s in self.load_streams.values():
+            s[1] = t + s[0]
+        self.k = 0
+        self._recompute_next_due()
+
     def send_step_marker(self) -> None:
         """Lockstep: SYSTEM_TIME at the end of every step (its time_boot_ms is the new simulation time)."""
         self.mav.send(self.mav.system_time_encode(self.boot_unix_us + self.t_us, self.t_us // 1000))

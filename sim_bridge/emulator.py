@@ -234,6 +234,7 @@ class Emulator:
                     if lockstep and n:
                         streaming = True
                         last_sp_wall = time.monotonic()
+                        self.ap.rephase()
                         self._lockstep_advance(n, end_us)
                 elif faulty:
                     self.link.now = self.t_us * 1e-6

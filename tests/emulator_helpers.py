@@ -53,6 +53,15 @@ class Emu:
         self.texts: list[str] = []  # every STATUSTEXT seen by recv()
 
     @property
+    def emulator_address(self) -> tuple[str, int]:
+        """The emulator's UDP address (known once it has sent us something)."""
+        return next(iter(self.conn.clients))
+
+    def send_raw(self, data: bytes) -> None:
+        """One raw datagram to the emulator."""
+        self.conn.port.sendto(data, self.emulator_address)
+
+    @property
     def mav(self) -> Any:
         """The pymavlink MAVLink object of the client."""
         return self.conn.mav
@@ -189,6 +198,7 @@ def fly_lockstep_hold(emu: Emu, seconds: float, vehicle: Vehicle, altitude: floa
     steps = 0
     t0 = time.monotonic()
     max_err = 0.0
+    trace: list[tuple[float, float, float]] = []
     while True:
         roll, pitch, thrust = ctrl.update(pos, vel)
         if not armed:
@@ -203,6 +213,8 @@ def fly_lockstep_hold(emu: Emu, seconds: float, vehicle: Vehicle, altitude: floa
             t = m.get_type()
             if t == "LOCAL_POSITION_NED":
                 pos, vel = (m.x, m.y, m.z), (m.vx, m.vy, m.vz)
+                if start_ms is not None:
+                    trace.append((m.time_boot_ms - start_ms, m.x, m.z))
             elif t == "SYSTEM_TIME" and m.get_srcSystem() == 1:
                 sim_ms = m.time_boot_ms
                 break
@@ -221,4 +233,4 @@ def fly_lockstep_hold(emu: Emu, seconds: float, vehicle: Vehicle, altitude: floa
                 break
     wall = time.monotonic() - t0
     return {"wall_s": wall, "sim_s": (sim_ms - (start_ms or 0)) / 1000.0, "pos": pos, "handshakes": steps,
-            "max_alt_err_after_10s": max_err}
+            "max_alt_err_after_10s": max_err, "trace": trace}
