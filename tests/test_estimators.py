@@ -385,3 +385,28 @@ def test_load_angle_records_unused_without_the_sensor() -> None:
     est.initialize(0.0, truth_state(dynamics.make_state()))
     est.push(LoadAngle(0.01, 0.1, 0.1))
     assert est.stats()["not_used"] == 1 and est.stats()["buffered"] == 0
+
+
+def _observable_rank(a: np.ndarray, rows: list[np.ndarray]) -> int:
+    h = np.array(rows)
+    blocks = [h]
+    for _ in range(a.shape[0] - 1):
+        blocks.append(blocks[-1] @ a)
+    o = np.vstack(blocks)
+    return int(np.linalg.matrix_rank(o / np.linalg.norm(o, axis=1, keepdims=True).clip(1e-300), tol=1e-9))
+
+
+def test_sensorless_observability() -> None:
+    """The horizontal model [p, v, a, a', n, n', d, b] is observable from position, velocity, attitude and
+    the accelerometer; without the accelerometer its bias is not (the swing then is, but only through two
+    differentiations of the velocity); without position only the position itself is lost."""
+    est = KalmanEstimator(V, load_sensor=False, rate_hz=100.0)
+    a = est._hb.a
+    e = np.eye(8)
+    k = V.mass_load * V.gravity / V.mass_vehicle  # T / M at hover
+    acc = np.array((0.0, 0.0, k, 0.0, k, 0.0, 1.0, 1.0))
+    assert _observable_rank(a, [e[0], e[1], e[4], e[5], acc]) == 8
+    assert _observable_rank(a, [e[0], e[1], e[4], e[5]]) == 7
+    assert _observable_rank(a, [e[1], e[4], e[5], acc]) == 7
+    # the accelerometer alone with the attitude already pins the swing-plus-forces combination k a + d + b
+    assert _observable_rank(a, [e[4], e[5], acc]) < 8
