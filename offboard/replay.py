@@ -460,9 +460,11 @@ def initial_guess(vehicle: Vehicle, pv: PositionVelocity | None, att: Attitude |
 
 
 def _quat_angle(a: tuple[float, ...], b: tuple[float, ...]) -> float:
-    """Rotation angle (rad) between two unit quaternions (sign-insensitive)."""
-    d = abs(a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3])
-    return 2.0 * math.acos(min(1.0, d))
+    """Rotation angle (rad) between two unit quaternions (sign-insensitive): ``4 asin(|a - s b| / 2)`` with
+    ``s = sign(a . b)``, well conditioned for small angles (``2 acos(|a . b|)`` is not)."""
+    s = 1.0 if a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] >= 0.0 else -1.0
+    d = math.sqrt(sum((x - s * y) ** 2 for x, y in zip(a, b)))
+    return 4.0 * math.asin(min(1.0, 0.5 * d))
 
 
 _F32 = struct.Struct("<f")

@@ -142,8 +142,9 @@ def format_summary(metrics: dict[str, Any], reader: dict[str, Any] | None = None
     ag = metrics.get("setpoint_agreement")
     if ag:
         if "max_abs_difference" in ag:
-            rows.append(("recomputed vs logged", f"{ag['ticks_compared']} setpoints, max |diff| "
-                                                 f"{ag['max_abs_difference']:.3g}"))
+            rows.append(("recomputed vs logged", f"{ag['ticks_compared']} setpoints, "
+                                                 f"{ag.get('float32_identical', 0)} identical on the wire (float32), "
+                                                 f"max |diff| {ag['max_abs_difference']:.3g}"))
         if "attitude_angle_rad" in ag:
             rows.append(("  attitude", f"rms {_fmt(ag['attitude_angle_rad']['rms'], ' rad')}"))
         if "thrust" in ag:
@@ -151,6 +152,12 @@ def format_summary(metrics: dict[str, Any], reader: dict[str, Any] | None = None
         if "logged_vs_autopilot_attitude_target_rad" in ag:
             a = ag["logged_vs_autopilot_attitude_target_rad"]
             rows.append(("logged vs ATTITUDE_TARGET", f"rms {_fmt(a['rms'], ' rad')}"))
+    live = metrics.get("live_agreement")
+    if live:
+        txt = f"estimates identical {live['estimate_identical']}/{live['ticks']}"
+        if "setpoint_identical" in live:
+            txt += f", setpoints identical {live['setpoint_identical']}/{live['ticks']}"
+        rows.append(("vs live tick log", txt + f" (max |diff| {live['estimate_max_abs_difference']:.3g})"))
     for reason in inv["missing"]:
         rows.append(("missing", reason))
     width = max(len(k) for k, _ in rows)
