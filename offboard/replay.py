@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from estimators.control_state import ControlState
 from estimators.flatness import flat_chain, flat_constants, world_tilt
@@ -64,6 +65,14 @@ ARDUPILOT_COPTER_GUIDED = (4, 20)  # GUIDED, GUIDED_NOGPS
 SETPOINT_TYPES = ("SET_ATTITUDE_TARGET", "SET_ACTUATOR_CONTROL_TARGET")
 TELEMETRY_TYPES = frozenset({"ATTITUDE", "ATTITUDE_QUATERNION", "LOCAL_POSITION_NED", "ODOMETRY", "HIGHRES_IMU",
                              "SCALED_IMU", "DEBUG_VECT"})
+
+
+def type_name(mav_type: int) -> str:
+    """Readable MAV_TYPE name (``"quadrotor"``, ``"fixed wing"``, else pymavlink's enum name)."""
+    if mav_type in MAV_TYPE_NAMES:
+        return MAV_TYPE_NAMES[mav_type]
+    entry = dialect.enums.get("MAV_TYPE", {}).get(mav_type)
+    return entry.name.removeprefix("MAV_TYPE_").lower().replace("_", " ") if entry is not None else f"type {mav_type}"
 
 
 def vehicle_time_of(msg: Any) -> float | None:
@@ -226,7 +235,7 @@ def inventory(sc: Scan) -> dict[str, Any]:
         hb = info.heartbeat
         systems.append({
             "sysid": sid, "compid": cid, "messages": info.count,
-            "type": None if hb is None else MAV_TYPE_NAMES.get(hb[0], f"type {hb[0]}"),
+            "type": None if hb is None else type_name(hb[0]),
             "autopilot": None if hb is None else MAV_AUTOPILOT_NAMES.get(hb[1], f"autopilot {hb[1]}"),
             "logger_span_s": lspan, "vehicle_time_span_s": span,
             "rates_hz": {k: (v - 1) / span for k, v in sorted(info.messages.items()) if span and v > 1
@@ -238,8 +247,9 @@ def inventory(sc: Scan) -> dict[str, Any]:
         if e.kind == "m" and e.sysid == ap:
             by_kind[type(e.payload).__name__] += 1
     for (sid, _), info in sc.systems.items():
-        if sid != ap and "GLOBAL_POSITION_INT" in info.messages and "HEARTBEAT" not in info.messages:
-            load_system = True
+        hb = info.heartbeat
+        if sid != ap and "GLOBAL_POSITION_INT" in info.messages and (hb is None or hb[0] not in NON_VEHICLE_TYPES):
+            load_system = True  # e.g. ArduPilot's slung-payload SITL: the load as its own system
     sp_to_ap = sum(1 for e in sc.events if e.kind == "sp" and (e.sysid == ap or e.sysid == 0))
     mt = sc.mav_type
     vehicle_class = ("unknown" if mt is None else "multirotor" if mt in MULTIROTOR_TYPES
@@ -251,10 +261,10 @@ def inventory(sc: Scan) -> dict[str, Any]:
         missing.append("no HEARTBEAT from the autopilot: flavour, vehicle type and flight mode unknown "
                        f"(system {ap} assumed from its ATTITUDE telemetry)")
     if vehicle_class == "fixed wing":
-        missing.append(f"vehicle type is {MAV_TYPE_NAMES.get(mt, mt)} (fixed wing): the slung-load model, "
+        missing.append(f"vehicle type is {type_name(mt)} (fixed wing): the slung-load model, "
                        "estimator and controller are for multirotors; not replayed")
     elif vehicle_class == "other":
-        missing.append(f"vehicle type is {MAV_TYPE_NAMES.get(mt, mt)}: not a multirotor; not replayed")
+        missing.append(f"vehicle type is {type_name(mt)}: not a multirotor; not replayed")
     if by_kind["Attitude"] == 0:
         missing.append("no ATTITUDE telemetry from the autopilot: the estimator cannot run")
     if by_kind["PositionVelocity"] == 0:
@@ -270,7 +280,7 @@ def inventory(sc: Scan) -> dict[str, Any]:
         "systems": systems,
         "autopilot_sysid": ap,
         "autopilot": None if sc.autopilot is None else MAV_AUTOPILOT_NAMES.get(sc.autopilot, f"{sc.autopilot}"),
-        "vehicle_type": None if mt is None else MAV_TYPE_NAMES.get(mt, f"type {mt}"),
+        "vehicle_type": None if mt is None else type_name(mt),
         "vehicle_class": vehicle_class,
         "message_counts": dict(sorted(msg_counts.items())),
         "measurements": by_kind,
