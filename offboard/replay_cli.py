@@ -56,7 +56,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="reference the logged flight used (default: from the run's metrics.json beside the log)")
     p.add_argument("--trajectory", metavar="FILE", help="trajectory file the logged flight used (TOML)")
     p.add_argument("--reference-start", type=_time, metavar="T",
-                   help="vehicle time (s) at which the reference began (default: the first offboard setpoint)")
+                   help="vehicle time (s) at which the reference began (default: where the loop started)")
     p.add_argument("--no-live-log", action="store_true",
                    help="ignore the live run's timeseries_live.csv beside the log (replay from the tlog alone)")
     p.add_argument("--switching", choices=("sign", "smooth"), default=None,
