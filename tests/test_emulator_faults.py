@@ -239,7 +239,7 @@ def test_injected_loss_and_latency() -> None:
                     rtts.append(time.monotonic() - sent[m.seq])
             time.sleep(0.005)
         assert 8 <= len(rtts) <= 35  # (1 - 0.3) * 0.5 of 60 = 21 expected
-        assert all(0.39 < r < 0.47 for r in rtts)  # 2 x (0.2 s + up to 0.02 s jitter) + polling
+        assert all(0.39 < r < 0.6 for r in rtts)  # 2 x (0.2 s + up to 0.02 s jitter) + polling, host load
         summary = e.stop()
     rx = summary["link"]["rx"]
     assert rx["dropped_in"] == pytest.approx(0.3 * rx["datagrams"], abs=0.15 * rx["datagrams"])

@@ -6,7 +6,8 @@ from __future__ import annotations
 import math
 import struct
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 import pytest
 from emulator_helpers import MAV_CMD_ARM, MAV_CMD_DO_SET_MODE, MAV_CMD_SET_MESSAGE_INTERVAL, Emu, attitude_target
@@ -350,3 +351,61 @@ def test_nan_and_malformed_setpoints_are_rejected_and_counted() -> None:
         assert m is not None and m.errors_count4 == 4
         e.stop()
         assert e.summary["link"]["rx"]["malformed"] == 4
+
+
+def _lockstep_steps(e: Emu, send: Callable[[], None], n: int) -> Any:
+    """Send ``n`` setpoints in lockstep, reading to each end-of-step marker; the last LOCAL_POSITION_NED."""
+    pos = None
+    for _ in range(n):
+        send()
+        while True:
+            m = e.recv(["LOCAL_POSITION_NED", "SYSTEM_TIME"], 2.0)
+            assert m is not None
+            if m.get_type() == "SYSTEM_TIME":
+                break
+            pos = m
+    return pos
+
+
+def test_px4_position_and_actuator_setpoints_in_offboard() -> None:
+    with Emu("--est-ready", "0.2", "--lockstep") as e:
+        e.wait_heartbeat()
+        e.wait_ready()
+        e.command(MAV_CMD_SET_MESSAGE_INTERVAL, 32, 10000)
+        mask_pos = 0b110111111000  # position only + no yaw rate (yaw used)
+
+        def pos_sp() -> None:
+            e.mav.set_position_target_local_ned_send(0, 1, 1, 1, mask_pos, 1.0, -0.5, -2.0, 0, 0, 0, 0, 0, 0, 0.0, 0)
+
+        _lockstep_steps(e, pos_sp, 5)
+        assert e.command(MAV_CMD_ARM, 1, 0).result == 0
+        assert e.command(MAV_CMD_DO_SET_MODE, 1, 6, 0).result == 0
+        p = _lockstep_steps(e, pos_sp, 1000)  # 10 s
+        assert (p.x, p.y, p.z) == pytest.approx((1.0, -0.5, -2.0), abs=0.1)
+        # PX4 <= v1.13 actuator controls: thrust above hover with zero torques climbs straight up
+        hover = V.hover_thrust_normalized
+
+        def act(thrust: float, roll: float = 0.0) -> Callable[[], None]:
+            return lambda: e.mav.set_actuator_control_target_send(0, 0, 1, 1, [roll, 0, 0, thrust, 0, 0, 0, 0])
+
+        p0 = _lockstep_steps(e, act(hover + 0.05), 1)
+        p1 = _lockstep_steps(e, act(hover + 0.05), 100)
+        assert p1.z < p0.z - 0.1 and abs(p1.vx) < 0.3 and abs(p1.vy) < 0.3
+        # a positive roll control rolls right (FRD): the roll rate in ATTITUDE becomes positive
+        e.command(MAV_CMD_SET_MESSAGE_INTERVAL, 30, 10000)
+        _lockstep_steps(e, act(hover, 0.2), 5)
+        att = e.recv("ATTITUDE", 2.0)
+        assert att.rollspeed > 0.05 and att.roll > 0.0
+        e.stop()
+        assert e.summary["counters"]["setpoints_rejected"] == 0
+
+
+def test_bad_command_line_is_a_one_line_user_error(capsys: pytest.CaptureFixture[str]) -> None:
+    from offboard.cli import main
+
+    for argv in (["emulate", "--loss-in", "2"], ["emulate", "--signing-key", "abc"],
+                 ["emulate", "--mavlink", "tcp:127.0.0.1:5760"], ["emulate", "--lockstep-period", "0"],
+                 ["emulate", "--vehicle", "/nonexistent/vehicle.toml"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("slung emulate: error:") and "\n" not in err, err
