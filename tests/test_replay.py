@@ -32,19 +32,22 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def demo_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """Two short `slung demo` flights (PX4 flavour, attitude and actuator output) recorded for the replay."""
+    """Three short `slung demo` flights recorded for the replay: PX4 with attitude and with actuator output,
+    ArduPilot (GUIDED, throttle with angle boost) with attitude output."""
     out = {}
-    for output in ("attitude", "actuator"):
-        d = tmp_path_factory.mktemp(f"demo-{output}")
-        assert main(["demo", "--duration", "1.5", "--output", output, "--no-figures", "--out", str(d)]) == 0
-        out[output] = d
+    for flavor, output in (("px4", "attitude"), ("px4", "actuator"), ("ardupilot", "attitude")):
+        d = tmp_path_factory.mktemp(f"demo-{flavor}-{output}")
+        assert main(["demo", "--flavor", flavor, "--duration", "1.5", "--output", output, "--no-figures",
+                     "--out", str(d)]) == 0
+        out[f"{flavor}-{output}"] = d
     return out
 
 
-@pytest.mark.parametrize("output", ["attitude", "actuator"])
+@pytest.mark.parametrize("run_name", ["px4-attitude", "px4-actuator", "ardupilot-attitude"])
 def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
-        demo_runs: dict[str, Path], output: str, tmp_path: Path) -> None:
-    run = demo_runs[output]
+        demo_runs: dict[str, Path], run_name: str, tmp_path: Path) -> None:
+    run = demo_runs[run_name]
+    flavor, output = run_name.split("-")
     code, m = _replay_cli(run / "flight.tlog", tmp_path / "r")
     assert code == 0
     live = _csv_columns(run / "timeseries_live.csv")
@@ -65,12 +68,12 @@ def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
     assert m["live_agreement"]["setpoint_identical"] == n
     # what went over the wire (float32) is what the replay recomputes, rounded to float32
     assert m["setpoint_agreement"]["float32_identical"] == m["setpoint_agreement"]["ticks_compared"] == n
-    assert m["log"]["has_offboard_segment"] and m["log"]["autopilot"] == "px4"
+    assert m["log"]["has_offboard_segment"] and m["log"]["autopilot"] == flavor
 
 
 def test_replay_of_slung_demo_from_the_tlog_alone(demo_runs: dict[str, Path], tmp_path: Path) -> None:
     """Without the live tick log the ticks are rebuilt from the lockstep markers and the setpoints in the tlog."""
-    run = demo_runs["attitude"]
+    run = demo_runs["px4-attitude"]
     code, m = _replay_cli(run / "flight.tlog", tmp_path / "r", "--no-live-log")
     assert code == 0
     live = _csv_columns(run / "timeseries_live.csv")
