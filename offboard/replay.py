@@ -919,6 +919,11 @@ def _metrics(data: np.ndarray, cols: tuple[str, ...], inv: dict[str, Any], estim
             live["setpoint_max_abs_difference"] = float(np.max(ls))
             live["setpoint_identical"] = int(np.sum(ls == 0.0))
     ref = config.reference
+    notes = []
+    if source != "grid" and not source.startswith("grid") and not extra.get("controller_ran"):
+        notes.append("the log holds an offboard flight but the reference it flew is unknown: only the estimator ran "
+                     "(give --scenario or --trajectory, or keep the run's metrics.json beside the tlog)")
+    est["notes"] = notes
     return {
         "log": inv,
         "estimation": est,

@@ -158,6 +158,8 @@ def format_summary(metrics: dict[str, Any], reader: dict[str, Any] | None = None
         if "setpoint_identical" in live:
             txt += f", setpoints identical {live['setpoint_identical']}/{live['ticks']}"
         rows.append(("vs live tick log", txt + f" (max |diff| {live['estimate_max_abs_difference']:.3g})"))
+    for note in (est or {}).get("notes", []):
+        rows.append(("note", note))
     for reason in inv["missing"]:
         rows.append(("missing", reason))
     width = max(len(k) for k, _ in rows)

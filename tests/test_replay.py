@@ -105,6 +105,18 @@ def test_generated_offboard_flight_is_reproduced_with_and_without_its_tick_log(o
     assert res.metrics["estimation"]["alpha_x_vs_sensor"]["rms"] < 0.01
 
 
+def test_offboard_flight_with_an_unknown_reference_runs_the_estimator_only(tmp_path: Path) -> None:
+    data, live_rows = offboard_log(seconds=0.8)
+    path = tmp_path / "off.tlog"
+    path.write_bytes(data)
+    code, m = _replay_cli(path, tmp_path / "r", "--no-figures")
+    assert code == 0
+    assert m["estimation"]["ticks"] == len(live_rows) and m["estimation"]["tick_source"] == "logged setpoints"
+    assert m["tracking"] is None and any("reference" in n for n in m["estimation"]["notes"])
+    ts = _csv_columns(tmp_path / "r" / "timeseries.csv")
+    assert np.all(np.isnan(ts["sp_thrust"])) and np.all(np.isfinite(ts["log_thrust"]))
+
+
 def test_a_tick_log_from_another_flight_is_refused(tmp_path: Path) -> None:
     data, _ = offboard_log(seconds=0.6)
     _, other = offboard_log(seconds=0.6, scenario="circle")
