@@ -119,7 +119,7 @@ class SystemInfo:
         return sum(self.messages.values())
 
 
-@dataclass
+@dataclass(slots=True)
 class Event:
     """One entry of the replay stream, in log order. kind: "m" (measurement), "sp" (setpoint sent to the
     autopilot), "at" (the autopilot's ATTITUDE_TARGET), "mode" (offboard flag changed), "clock" (SYSTEM_TIME:

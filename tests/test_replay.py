@@ -244,3 +244,13 @@ def test_missing_file_and_bad_window_are_usage_errors(tmp_path: Path, capsys: py
     path.write_bytes(flight_log(LogSpec(seconds=0.5)))
     assert main(["replay", str(path), "--from", "5", "--to", "4", "--out", str(tmp_path / "r")]) == 2
     assert "--to" in capsys.readouterr().err
+
+
+def test_progress_bar_draws_on_stderr(capsys: pytest.CaptureFixture[str]) -> None:
+    from offboard.replay_cli import _progress_bar
+
+    bar = _progress_bar()
+    for f in (0.0, 0.5, 0.5, 1.0):
+        bar(f)
+    err = capsys.readouterr().err
+    assert err.count("%") == 3 and " 50%" in err and "100%" in err and err.endswith("\n")

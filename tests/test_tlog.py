@@ -175,3 +175,23 @@ def test_progress_callback_reaches_one(clean: bytes) -> None:
     seen: list[float] = []
     list(TlogReader(clean, progress=seen.append))
     assert seen and seen[-1] == 1.0 and all(a <= b for a, b in itertools.pairwise(seen))
+
+
+def test_signed_mavlink2_packets_are_read_and_counted(clean: bytes) -> None:
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    mav.signing.secret_key = bytes(range(32))
+    mav.signing.sign_outgoing = True
+    mav.signing.link_id = 1
+    mav.signing.timestamp = 1000
+    recs = _records(clean)
+    out = bytearray()
+    for i, (ts, pkt) in enumerate(recs[:50]):
+        out += encode_record(ts, pkt)
+        if i % 10 == 0:
+            out += encode_record(ts + 4, mav.attitude_encode(i, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0).pack(mav))
+    msgs, r = _read(bytes(out))
+    assert len(msgs) == 55 and r.stats.signed == 5 and r.stats.garbage_bytes == 0
+    assert [m.time_boot_ms for _, m in msgs if m.get_srcSystem() == 1 and m.get_type() == "ATTITUDE"
+            and m.roll == pytest.approx(0.1)] == [0, 10, 20, 30, 40]
