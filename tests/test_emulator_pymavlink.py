@@ -409,3 +409,32 @@ def test_bad_command_line_is_a_one_line_user_error(capsys: pytest.CaptureFixture
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith("slung emulate: error:") and "\n" not in err, err
+
+
+def test_px4_every_mode_has_its_heartbeat_encoding() -> None:
+    from sim_bridge.flavors import PX4_MODES
+
+    with Emu("--est-ready", "0.2") as e:
+        e.wait_heartbeat()
+        e.wait_ready()
+        for mode in PX4_MODES:
+            if mode.name == "OFFBOARD":
+                continue
+            main, sub = (mode.custom_mode >> 16) & 0xFF, (mode.custom_mode >> 24) & 0xFF
+            if mode.name == "AUTO.TAKEOFF":  # through COMMAND_INT this time (disarmed: stays in take-off)
+                e.drain()
+                e.mav.command_int_send(1, 1, 0, 176, 0, 0, 1, main, sub, 0, 0, 0, 0)
+                ack = e.recv("COMMAND_ACK", 1.0, cond=lambda m: m.command == 176)
+            else:
+                ack = e.command(MAV_CMD_DO_SET_MODE, 1, main, sub)
+            assert ack is not None and ack.result == 0, mode.name
+            e.command(512, 0)  # REQUEST_MESSAGE HEARTBEAT: answered at once
+            hb = e.recv("HEARTBEAT", 2.0)
+            assert hb.custom_mode == mode.custom_mode, mode.name
+            assert hb.base_mode == mode.base_flags, mode.name
+        # the legacy SET_MODE message: acknowledged as DO_SET_MODE
+        e.mav.set_mode_send(1, 1, 196608)
+        assert e.recv("COMMAND_ACK", 1.0, cond=lambda m: m.command == 176).result == 0
+        e.command(512, 0)
+        assert e.recv("HEARTBEAT", 2.0).custom_mode == 196608
+        e.stop()
