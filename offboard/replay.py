@@ -469,14 +469,6 @@ def initial_guess(vehicle: Vehicle, pv: PositionVelocity | None, att: Attitude |
                         z, vz, phi, theta, psi, 0.0, 0.0, 0.0, ax, ay, 0.0, 0.0)
 
 
-def _quat_angle(a: tuple[float, ...], b: tuple[float, ...]) -> float:
-    """Rotation angle (rad) between two unit quaternions (sign-insensitive): ``4 asin(|a - s b| / 2)`` with
-    ``s = sign(a . b)``, well conditioned for small angles (``2 acos(|a . b|)`` is not)."""
-    s = 1.0 if a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] >= 0.0 else -1.0
-    d = math.sqrt(sum((x - s * y) ** 2 for x, y in zip(a, b)))
-    return 4.0 * math.asin(min(1.0, 0.5 * d))
-
-
 _F32 = struct.Struct("<f")
 
 
@@ -657,22 +649,22 @@ def replay(sc: Scan, inv: dict[str, Any], config: ReplayConfig,
                                delay_s=config.delay_s)
     cols = columns_for(output)
     if ticks:
-        rows, extra = _replay_ticks(events, meas_pos, meas, start, ticks, estimator, config, output, load_sensor,
+        data, extra = _replay_ticks(events, meas_pos, meas, start, ticks, estimator, config, output, load_sensor,
                                     progress)
     else:
         source = f"grid at {rate:g} Hz"
         rows, extra = _replay_grid(events, estimator, vehicle, rate, t_from, t_to, load_sensor, output, progress)
+        data = np.array(rows, dtype=float) if rows else np.zeros((0, len(cols)))
     if progress is not None:
         progress(1.0)
-    data = np.array(rows, dtype=float) if rows else np.zeros((0, len(cols)))
     metrics = _metrics(data, cols, inv, estimator, output, source, extra, config, rate, load_sensor, MASKS)
     return ReplayResult(data, cols, metrics, output)
 
 
 def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], start: int, ticks: list[_Tick],
                   estimator: Any, config: ReplayConfig, output: str, load_sensor: bool,
-                  progress: Callable[[float], None] | None) -> tuple[list[tuple[float, ...]], dict[str, Any]]:
-    """Replay the controller ticks (see module docstring); returns the rows and the comparison figures."""
+                  progress: Callable[[float], None] | None) -> tuple[np.ndarray, dict[str, Any]]:
+    """Replay the controller ticks (see module docstring); returns the table and the comparison figures."""
     from offboard import smc
     from offboard.command_mapping import AutopilotModel, CommandMapper, MappingConfig
     from offboard.link.setpoints import MASKS
@@ -721,12 +713,6 @@ def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], sta
     nan_sp = (nan,) * nsp
     live = config.live
     rows: list[tuple[float, ...]] = []
-    cmp_angle: list[float] = []
-    cmp_fields: list[tuple[float, ...]] = []
-    cmp_exact: list[bool] = []
-    live_est: list[float] = []
-    live_sp: list[float] = []
-    ap_angle: list[float] = []
     # the autopilot's ATTITUDE_TARGET and mode flag, in log order, merged by event index
     side = [(i, e) for i, e in enumerate(events) if e.kind in ("at", "mode")]
     si = 0
@@ -737,6 +723,7 @@ def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], sta
     pushed = 0
     step = smc.step
     n_t = len(ticks)
+    nan4 = (nan,) * 4
     for k, tk in enumerate(ticks):
         if progress is not None and k % 2000 == 0:
             progress(k / n_t)
@@ -760,7 +747,6 @@ def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], sta
         t_v = tk.t_v
         t_ref = tk.t_ref if t_shift == 0.0 else t_v - config.reference.start  # type: ignore[union-attr]
         est = estimator.estimate(t_v)
-        logged = tk.logged
         if reference is not None:
             ref = reference.sample(t_ref)
             rfx = (ref.fx[0] + ox, *ref.fx[1:])
@@ -769,34 +755,61 @@ def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], sta
             sp = mapper.map(t_ref, cmd, est)
             if math.isfinite(cmd.thrust + cmd.tau_phi + cmd.tau_theta + cmd.tau_psi):
                 estimator.push_command(t_v, cmd.thrust, (cmd.tau_phi, cmd.tau_theta, cmd.tau_psi))
-            recomputed = _sp_fields(sp)
-            refs = (rfx[0], rfy[0], ref.z[0], ref.psi[0])
-            cmds = (cmd.thrust, cmd.tau_phi, cmd.tau_theta, cmd.tau_psi)
-            cmp_exact.append(all(_f32(a) == b for a, b in zip(recomputed, logged)))
-            if output == "attitude":
-                cmp_angle.append(_quat_angle(recomputed[:4], logged[:4]))
-                cmp_fields.append(tuple(abs(a - b) for a, b in zip(recomputed[4:], logged[4:])))
-            else:
-                cmp_fields.append(tuple(abs(a - b) for a, b in zip(recomputed, logged)))
+            rows.append((t_v, t_ref, tk.lt, 1.0, *est.fx, *est.fy, *est[2:], *last_load, *last_pos, rfx[0], rfy[0],
+                         ref.z[0], ref.psi[0], cmd.thrust, cmd.tau_phi, cmd.tau_theta, cmd.tau_psi, *_sp_fields(sp),
+                         *tk.logged, *last_at, offboard, nan, nan))
         else:
-            recomputed, refs, cmds = nan_sp, (nan,) * 4, (nan,) * 4
-        d_est = d_sp = nan
-        if live is not None and tk.live >= 0:
-            le = live.est[tk.live]
-            d_est = max(abs(a - b) for a, b in zip((*est.fx, *est.fy, *est[2:]), le))
-            live_est.append(d_est)
-            if reference is not None:
-                d_sp = max(abs(a - b) for a, b in zip(recomputed, live.sp[tk.live, :nsp]))
-                live_sp.append(d_sp)
-        if output == "attitude" and math.isfinite(last_at[0]):
-            ap_angle.append(_quat_angle(last_at[:4], logged[:4]))
-        rows.append((t_v, t_ref, tk.lt, 1.0, *est.fx, *est.fy, *est[2:], *last_load, *last_pos, *refs, *cmds,
-                     *recomputed, *logged, *last_at, offboard, d_est, d_sp))
+            rows.append((t_v, t_ref, tk.lt, 1.0, *est.fx, *est.fy, *est[2:], *last_load, *last_pos, *nan4, *nan4,
+                         *nan_sp, *tk.logged, *last_at, offboard, nan, nan))
+    data = np.array(rows, dtype=float).reshape(len(rows), -1)
     extra: dict[str, Any] = {"controller_ran": reference is not None, "origin": [ox, oy], "mapper": mapper,
-                             "cmp_angle": cmp_angle, "cmp_fields": cmp_fields, "cmp_exact": cmp_exact,
-                             "ap_angle": ap_angle, "live_est": live_est, "live_sp": live_sp,
                              "t_init": t_init, "start_index": start}
-    return rows, extra
+    _compare(data, columns_for(output), output, reference is not None, live,
+             np.array([tk.live for tk in ticks], dtype=int), extra)
+    return data, extra
+
+
+def _quat_angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotation angles (rad) between the rows of two (n, 4) arrays of unit quaternions, sign-insensitive:
+    ``4 asin(|a - s b| / 2)`` with ``s = sign(a . b)``, well conditioned for small angles (``2 acos(|a . b|)``
+    is not: float32 rounding alone would read as 5e-4 rad)."""
+    s = np.where(np.sum(a * b, axis=1) >= 0.0, 1.0, -1.0)[:, None]
+    d = np.sqrt(np.sum((a - s * b) ** 2, axis=1))
+    return 4.0 * np.arcsin(np.minimum(1.0, 0.5 * d))
+
+
+def _compare(data: np.ndarray, cols: tuple[str, ...], output: str, controller_ran: bool, live: LiveRun | None,
+             live_idx: np.ndarray, extra: dict[str, Any]) -> None:
+    """Recomputed vs logged setpoints, logged vs the autopilot's ATTITUDE_TARGET, and replay vs the live tick
+    log, over all ticks at once; fills the ``live_*_diff`` columns and the comparison entries of ``extra``."""
+    if len(data) == 0:
+        return
+    c = {n: i for i, n in enumerate(cols)}
+    nsp = 8 if output == "attitude" else 4
+    s0, l0 = c["sp_" + (SP_ATT if output == "attitude" else SP_ACT)[0]], c["log_" + (SP_ATT if output == "attitude"
+                                                                                       else SP_ACT)[0]]
+    rec, logged = data[:, s0:s0 + nsp], data[:, l0:l0 + nsp]
+    if controller_ran:
+        extra["cmp_exact"] = np.all(rec.astype(np.float32) == logged, axis=1).tolist()
+        if output == "attitude":
+            extra["cmp_angle"] = _quat_angles(rec[:, :4], logged[:, :4]).tolist()
+            extra["cmp_fields"] = np.abs(rec[:, 4:] - logged[:, 4:]).tolist()
+        else:
+            extra["cmp_fields"] = np.abs(rec - logged).tolist()
+    if output == "attitude":
+        ap = data[:, c["ap_q_w"]:c["ap_q_w"] + 4]
+        ok = np.all(np.isfinite(ap), axis=1)
+        extra["ap_angle"] = _quat_angles(ap[ok], logged[ok, :4]).tolist()
+    if live is not None:
+        ok = live_idx >= 0
+        e0 = c["Fx"]
+        d_est = np.max(np.abs(data[ok, e0:e0 + len(EST_COLUMNS)] - live.est[live_idx[ok]]), axis=1)
+        data[ok, c["live_est_diff"]] = d_est
+        extra["live_est"] = d_est.tolist()
+        if controller_ran:
+            d_sp = np.max(np.abs(rec[ok] - live.sp[live_idx[ok], :nsp]), axis=1)
+            data[ok, c["live_sp_diff"]] = d_sp
+            extra["live_sp"] = d_sp.tolist()
 
 
 def _replay_grid(events: list[Event], estimator: Any, vehicle: Vehicle, rate: float, t_from: float, t_to: float,
