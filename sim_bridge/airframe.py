@@ -354,6 +354,28 @@ class PositionController:
         return q, min(max(thrust, 0.0), 1.0)
 
 
+def px4_thrust_newtons(thrust_norm: float, thrust_max: float) -> float:
+    """PX4 multicopter thrust semantics: normalized collective thrust 0..1 of the maximum -> N (linear,
+    THR_MDL_FAC = 0). Negative values (reverse thrust) are clamped to 0 on a quadrotor."""
+    return min(max(thrust_norm, 0.0), 1.0) * thrust_max
+
+
+def ardupilot_climb_rate(thrust: float, speed_up: float, speed_down: float) -> float:
+    """ArduPilot GUIDED SET_ATTITUDE_TARGET thrust as a climb-rate command (GUID_OPTIONS bit 3 clear), m/s up:
+    0.5 -> 0, 1 -> ``speed_up`` (WPNAV_SPEED_UP), 0 -> ``-speed_down`` (WPNAV_SPEED_DN), linear in between."""
+    t = min(max(thrust, 0.0), 1.0)
+    return (t - 0.5) * 2.0 * (speed_up if t >= 0.5 else speed_down)
+
+
+def ardupilot_throttle_newtons(thrust: float, phi: float, theta: float, boost: bool, thrust_max: float) -> float:
+    """ArduPilot GUIDED thrust-as-throttle (GUID_OPTIONS bit 3): throttle 0..1, times 1/cos(tilt) when
+    ATC_ANGLE_BOOST is on, capped at full throttle -> N."""
+    thr = min(max(thrust, 0.0), 1.0)
+    if boost:
+        thr = min(angle_boost(thr, phi, theta), 1.0)
+    return thr * thrust_max
+
+
 def angle_boost(throttle: float, phi: float, theta: float) -> float:
     """ArduPilot's angle boost: throttle / cos(tilt), with cos(tilt) floored at 0.5 (AC_AttitudeControl_Multi)."""
     ct = math.cos(phi) * math.cos(theta)
@@ -366,8 +388,11 @@ __all__ = [
     "PositionController",
     "RateGains",
     "angle_boost",
+    "ardupilot_climb_rate",
+    "ardupilot_throttle_newtons",
     "body_rates",
     "default_rate_gains",
+    "px4_thrust_newtons",
     "quat_from_thrust_dir_yaw",
     "quat_mul",
 ]

@@ -37,7 +37,16 @@ from estimators.frames import (
     ned_to_model_vector,
 )
 from estimators.vehicle import Vehicle
-from sim_bridge.airframe import AttitudeController, Mixer, PositionController, angle_boost, body_rates
+from sim_bridge.airframe import (
+    AttitudeController,
+    Mixer,
+    PositionController,
+    angle_boost,
+    ardupilot_climb_rate,
+    ardupilot_throttle_newtons,
+    body_rates,
+    px4_thrust_newtons,
+)
 from sim_bridge.dynamics import plant_params
 from sim_bridge.flavors import INT8, INT16, INT32, SAFETY_ARMED, Flavor, Mode, make_flavor
 from sim_bridge.link import Link
@@ -779,12 +788,12 @@ class Autopilot:
             else:
                 sk = self.sp_kind
                 if sk == "att":
-                    self._track_attitude(x, self.sp_q, self.sp_thrust * self.tmax, self.sp_yaw_ff)
+                    self._track_attitude(x, self.sp_q, px4_thrust_newtons(self.sp_thrust, self.tmax), self.sp_yaw_ff)
                     return
                 if sk == "rates":
                     self.q_sp = self._q_now(x)
                     self.rate_sp = self.sp_rates
-                    self.thrust_cmd = min(max(self.sp_thrust, 0.0), 1.0) * self.tmax
+                    self.thrust_cmd = px4_thrust_newtons(self.sp_thrust, self.tmax)
                     return
                 if sk == "direct":
                     c = self.sp_direct
@@ -913,16 +922,11 @@ class Autopilot:
             use_thrust = int(self._p("GUID_OPTIONS")) & 8
             rate_only = bool(self.sp_mask & 128)
             if use_thrust:
-                thr = min(max(thrust, 0.0), 1.0)
-                if int(self._p("ATC_ANGLE_BOOST")):
-                    thr = min(angle_boost(thr, x[6], x[7]), 1.0)
-                thrust_n = thr * self.tmax
+                thrust_n = ardupilot_throttle_newtons(thrust, x[6], x[7], bool(int(self._p("ATC_ANGLE_BOOST"))),
+                                                      self.tmax)
             else:
-                t = min(max(thrust, 0.0), 1.0)
-                if t >= 0.5:
-                    climb = (t - 0.5) * 2.0 * self._p("WPNAV_SPEED_UP") / 100.0
-                else:
-                    climb = (t - 0.5) * 2.0 * self._p("WPNAV_SPEED_DN") / 100.0
+                climb = ardupilot_climb_rate(thrust, self._p("WPNAV_SPEED_UP") / 100.0,
+                                             self._p("WPNAV_SPEED_DN") / 100.0)
                 if on_ground and climb <= 0.0:
                     self._idle(x)
                     self.z_target = 0.0

@@ -123,3 +123,19 @@ def test_angle_boost_divides_by_cos_tilt_with_a_floor() -> None:
     assert angle_boost(0.5, 0.0, 0.0) == 0.5
     assert angle_boost(0.5, math.radians(30), 0.0) == pytest.approx(0.5 / math.cos(math.radians(30)))
     assert angle_boost(0.5, math.radians(80), 0.0) == pytest.approx(1.0)
+
+
+def test_thrust_semantics_px4_and_ardupilot() -> None:
+    from sim_bridge.airframe import ardupilot_climb_rate, ardupilot_throttle_newtons, px4_thrust_newtons
+
+    assert px4_thrust_newtons(V.hover_thrust_normalized, V.thrust_max) == pytest.approx(V.hover_thrust)
+    assert px4_thrust_newtons(1.7, V.thrust_max) == V.thrust_max and px4_thrust_newtons(-0.2, V.thrust_max) == 0.0
+    # ArduPilot: 0.5 = no climb, 1 = WPNAV_SPEED_UP, 0 = WPNAV_SPEED_DN down
+    assert ardupilot_climb_rate(0.5, 2.5, 1.5) == 0.0
+    assert ardupilot_climb_rate(1.0, 2.5, 1.5) == pytest.approx(2.5)
+    assert ardupilot_climb_rate(0.0, 2.5, 1.5) == pytest.approx(-1.5)
+    assert ardupilot_climb_rate(0.75, 2.5, 1.5) == pytest.approx(1.25)
+    tilt = math.radians(20.0)
+    assert ardupilot_throttle_newtons(0.4, tilt, 0.0, True, 16.0) == pytest.approx(0.4 / math.cos(tilt) * 16.0)
+    assert ardupilot_throttle_newtons(0.4, tilt, 0.0, False, 16.0) == pytest.approx(0.4 * 16.0)
+    assert ardupilot_throttle_newtons(0.95, tilt, 0.0, True, 16.0) == pytest.approx(16.0)
