@@ -103,7 +103,8 @@ def is_offboard_mode(autopilot: int, custom_mode: int, base_mode: int) -> bool:
 
 @dataclass
 class SystemInfo:
-    """One MAVLink source (system id, component id) seen in the log."""
+    """One MAVLink source (system id, component id) seen in the log. Rates (metrics.json ``rates_hz``) are per
+    message type: (count - 1) / the span of its own time field (sender time; messages without one have none)."""
 
     sysid: int
     compid: int
@@ -113,6 +114,7 @@ class SystemInfo:
     vt_last: float = -math.inf
     lt_first: float = math.inf  # logger time span, s since the epoch
     lt_last: float = -math.inf
+    spans: dict[str, list[float]] = field(default_factory=dict)  # message type -> [first, last] own time, s
 
     @property
     def count(self) -> int:
@@ -182,6 +184,11 @@ def scan(messages: Iterable[tuple[float, Any]]) -> Scan:
                 info.vt_first = vt
             if vt > info.vt_last:
                 info.vt_last = vt
+            sp_ = info.spans.get(kind)
+            if sp_ is None:
+                info.spans[kind] = [vt, vt]
+            elif vt > sp_[1]:
+                sp_[1] = vt
         if kind == "HEARTBEAT":
             info.heartbeat = (msg.type, msg.autopilot)
             if msg.autopilot != 8 and msg.type not in NON_VEHICLE_TYPES:
@@ -238,8 +245,8 @@ def inventory(sc: Scan) -> dict[str, Any]:
             "type": None if hb is None else type_name(hb[0]),
             "autopilot": None if hb is None else MAV_AUTOPILOT_NAMES.get(hb[1], f"autopilot {hb[1]}"),
             "logger_span_s": lspan, "vehicle_time_span_s": span,
-            "rates_hz": {k: (v - 1) / span for k, v in sorted(info.messages.items()) if span and v > 1
-                         and k in TELEMETRY_TYPES | {"ATTITUDE_TARGET", *SETPOINT_TYPES}},
+            "rates_hz": {k: (v - 1) / (info.spans[k][1] - info.spans[k][0]) for k, v in sorted(info.messages.items())
+                         if v > 1 and k in info.spans and info.spans[k][1] > info.spans[k][0]},
         })
     by_kind = {k: 0 for k in ("PositionVelocity", "Attitude", "Imu", "LoadAngle")}
     load_system = False
@@ -897,6 +904,13 @@ def _metrics(data: np.ndarray, cols: tuple[str, ...], inv: dict[str, Any], estim
         alpha = np.sqrt(ax * ax + ay * ay)
         est["swing_max_rad"] = float(np.max(alpha))
         est["swing_rms_rad"] = float(np.sqrt(np.mean(alpha * alpha)))
+        ell = config.vehicle.cable_length
+        ok = np.isfinite(col("pos_x"))
+        if np.any(ok):  # the vehicle position implied by the estimate (F - l alpha) vs the autopilot's latest
+            dx = col("Fx") - ell * col("alpha_y") - col("pos_x")
+            dy = col("Fy") - ell * col("alpha_x") - col("pos_y")
+            est["position_vs_autopilot_m"] = _stats(np.sqrt(dx * dx + dy * dy)[ok])
+            est["height_vs_autopilot_m"] = _stats((col("z") - col("pos_z"))[ok])
         if np.any(np.isfinite(col("meas_alpha_x"))):
             est["alpha_x_vs_sensor"] = _stats(ax - col("meas_alpha_x"))
             est["alpha_y_vs_sensor"] = _stats(ay - col("meas_alpha_y"))

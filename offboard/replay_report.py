@@ -132,6 +132,9 @@ def format_summary(metrics: dict[str, Any], reader: dict[str, Any] | None = None
                      + (f", t = {span[0]:.3f} .. {span[1]:.3f} s" if span else "")))
         rows.append(("swing", f"max {_fmt(est.get('swing_max_rad'), ' rad')}, "
                               f"rms {_fmt(est.get('swing_rms_rad'), ' rad')}"))
+        if "position_vs_autopilot_m" in est:
+            rows.append(("position vs autopilot", f"rms {_fmt(est['position_vs_autopilot_m']['rms'], ' m')}, "
+                                                  f"height rms {_fmt(est['height_vs_autopilot_m']['rms'], ' m')}"))
         for k in ("alpha_x_vs_sensor", "alpha_y_vs_sensor"):
             if k in est:
                 rows.append((k, f"rms {_fmt(est[k]['rms'], ' rad')}, max {_fmt(est[k]['max'], ' rad')}"))

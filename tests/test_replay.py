@@ -208,6 +208,7 @@ def test_mavlink1_log_replays(tmp_path: Path) -> None:
     code, m = _replay_cli(path, tmp_path / "r")
     assert code == 0 and m["reader"]["mavlink1"] == m["reader"]["packets"] > 0
     assert m["estimation"]["alpha_y_vs_sensor"]["rms"] < 0.01
+    assert m["estimation"]["position_vs_autopilot_m"]["rms"] < 0.05
     for name in ("swing.png", "flat_outputs.png"):
         assert (tmp_path / "r" / name).stat().st_size > 1000
 
