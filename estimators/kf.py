@@ -10,9 +10,11 @@ Design (``docs/estimation.md`` gives the derivation, the observability argument 
   (errata section 2) driven by the commanded torque::
 
       v'  = (M_t g / M) n + (m g / M) a + d
-      a'' = -w^2 (a + n) - d / l
+      a'' = -w^2 (a + n) - d / l + c_a
       n'' = Rz(psi) [tau_theta / I_theta, -tau_phi / I_phi]
 
+  where the known input ``c_a`` is the remainder of the exact swing acceleration (sphere form, errata E16)
+  over the linear term, evaluated at the estimate when the command is pushed (large swings stay modelled)
   so ``[p, v, a, a', n, n']`` maps one-to-one and linearly onto the flat-output chain (F, ..., F^(5)).
 - **Heading block** ``[psi, psi']`` driven by ``tau_psi / I_psi``; **height block** ``[z, z', d_z, b_z]`` driven by
   the vehicle's vertical acceleration ``(u n_3 + T r_3) / M - g`` evaluated at the estimate (thrust direction
@@ -59,7 +61,8 @@ from estimators.vehicle import Vehicle
 
 _DEG = math.pi / 180.0
 #: command input columns of each block (horizontal x and y, heading, height) and its slice of the output
-_INPUT = (slice(0, 2), slice(2, 3), slice(3, 4))
+_N_INPUTS = 6  # x axis: n'' and the nonlinear remainder of a''; the same for y; psi''; z''
+
 _SLICE = (slice(0, 16), slice(16, 18), slice(18, 22))
 _UPDATES = {
     "state": LinearBlock.update_state,
@@ -95,7 +98,7 @@ class Tuning:
     sigma_rate: float = 0.01
     sigma_acc: float = 0.2
     sigma_load: float = 0.5 * _DEG
-    q_v: float = 3e-4  # (m/s^2)^2/Hz, white acceleration on v'
+    q_v: float = 2e-3  # (m/s^2)^2/Hz, white acceleration on v'
     q_a: float = 0.05  # (rad/s^2)^2/Hz, white angular acceleration of the swing
     q_n: float = 0.05  # (rad/s^2)^2/Hz, tilt acceleration not explained by the torque command
     q_d: float = 0.5  # (m/s^3)^2/Hz, random walk of the unknown acceleration d
@@ -119,6 +122,13 @@ class Tuning:
     gate_probability: float = 0.9999
     gate_reopen: int = 10
     accel_gain_filter: float = 0.1  # weight of a new sample in the low-pass of the vertical specific force
+
+
+def _planar_accel(ri: float, r3: float, di: float, d3: float, ei: float, e3: float) -> float:
+    """Second derivative of the planar angle ``atan2(r_i, -r_3)`` from r, r', r'' components (rad/s^2)."""
+    q = ri * ri + r3 * r3
+    num = ri * d3 - r3 * di
+    return ((ri * e3 - r3 * ei) * q - num * 2.0 * (ri * di + r3 * d3)) / (q * q)
 
 
 class KalmanEstimator:
@@ -151,6 +161,7 @@ class KalmanEstimator:
         Mt = M + m
         self._Mt, self._g, self._m_over_M = Mt, g, m / M
         self._M, self._m, self._l = M, m, l
+        self._w2 = k.omega2
         self._inv_inertia = tuple(1.0 / i for i in vehicle.inertia)
 
         a = np.zeros((8, 8))
@@ -163,8 +174,9 @@ class KalmanEstimator:
         a[IAD, IN] = -k.omega2
         a[IAD, ID] = -1.0 / l
         a[IN, IND] = 1.0
-        b = np.zeros(8)
-        b[IND] = 1.0
+        b = np.zeros((8, 2))
+        b[IND, 0] = 1.0  # world tilt acceleration from the torque command
+        b[IAD, 1] = 1.0  # nonlinear remainder of a'' at the estimate
         self._hb = LinearBlock(a, b, (0.0, tn.q_v, 0.0, tn.q_a, 0.0, tn.q_n, tn.q_d, tn.q_b), batch=2)
         self._yb = LinearBlock(np.array([[0.0, 1.0], [0.0, 0.0]]), (0.0, 1.0), (0.0, tn.q_psi), batch=1)
         az = np.zeros((4, 4))
@@ -215,7 +227,7 @@ class KalmanEstimator:
         self._seq = 0
         self._latest_t = -math.inf
         # command history: (time, (horizontal input (2,), heading input (1,), height input (1,)))
-        self._cmds: list[tuple[float, np.ndarray]] = [(float(t), np.zeros(4))]
+        self._cmds: list[tuple[float, tuple[np.ndarray, ...]]] = [(float(t), self._command_views(np.zeros(_N_INPUTS)))]
         self._gated_run = {"pos": 0, "z": 0, "tilt": 0, "psi": 0, "acc": 0, "acc_z": 0, "load": 0}
         self._fz = self._g
         self._last_good = guess
@@ -254,27 +266,40 @@ class KalmanEstimator:
             self._stats["commands_rejected"] += 1
             return
         t = max(float(t), self._t_out)
-        out = self._out
-        psi = float(out[16])
+        o = self._out.tolist()
+        psi = o[16]
         cp, sp = math.cos(psi), math.sin(psi)
         ip, it, iy = self._inv_inertia
         ttheta, tphi = torque[1] * it, -torque[0] * ip  # accelerations of (theta, -phi)
-        # vertical acceleration of the vehicle at the output estimate: (u n3 + T r3) / M - g, with the thrust
-        # direction n from the tilt and the cable direction r from the swing estimate (sphere form, errata E16)
-        o = out.tolist()
+        # exact swing and vertical accelerations at the output estimate (sphere form, errata E16); for the
+        # swing, the remainder over the linear model is a known input
         nx, ny = o[IN], o[8 + IN]
         theta, phi = nx * cp + ny * sp, nx * sp - ny * cp
         sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
         n1, n2, n3 = sf * sp + cf * cp * st, cf * sp * st - cp * sf, cf * ct
-        (r1, r2, r3), (d1, d2, d3) = cable_from_planar(o[IA], o[8 + IA], o[IAD], o[8 + IAD])
-        M, m, l = self._M, self._m, self._l
-        tension = m * (M * l * (d1 * d1 + d2 * d2 + d3 * d3) - thrust * (n1 * r1 + n2 * r2 + n3 * r3)) / self._Mt
+        ay, ax = o[IA], o[8 + IA]
+        (r1, r2, r3), (d1, d2, d3) = cable_from_planar(ay, ax, o[IAD], o[8 + IAD])
+        M, m, l, g = self._M, self._m, self._l, self._g
+        rd2 = d1 * d1 + d2 * d2 + d3 * d3
+        nr = n1 * r1 + n2 * r2 + n3 * r3
+        tension = m * (M * l * rd2 - thrust * nr) / self._Mt
+        # r'' = -(u / (M l)) (n - (n.r) r) - |r'|^2 r
+        ku = thrust / (M * l)
+        e1 = -ku * (n1 - nr * r1) - rd2 * r1
+        e2 = -ku * (n2 - nr * r2) - rd2 * r2
+        e3 = -ku * (n3 - nr * r3) - rd2 * r3
         w = np.array((
             cp * ttheta - sp * tphi,
+            _planar_accel(r1, r3, d1, d3, e1, e3) + self._w2 * (ay + nx),
             sp * ttheta + cp * tphi,
+            _planar_accel(r2, r3, d2, d3, e2, e3) + self._w2 * (ax + ny),
             torque[2] * iy,
-            (thrust * n3 + tension * r3) / M - self._g,
+            (thrust * n3 + tension * r3) / M - g,
         ))
+        if not all(math.isfinite(v) for v in w.tolist()):
+            self._stats["commands_rejected"] += 1
+            return
+        w = self._command_views(w)
         cmds = self._cmds
         if cmds[-1][0] >= t:
             cmds[-1] = (cmds[-1][0], w)
@@ -366,7 +391,7 @@ class KalmanEstimator:
         while True:
             end = cmds[j + 1][0] if j + 1 < len(cmds) and cmds[j + 1][0] < t else t
             if end > tc:
-                x = blk.predict_mean(x, end - tc, cmds[j][1][_INPUT[bi]])
+                x = blk.predict_mean(x, end - tc, cmds[j][1][1 + bi])
                 tc = end
             if end >= t:
                 break
@@ -381,13 +406,18 @@ class KalmanEstimator:
         if k:
             del cmds[:k]
 
+    @staticmethod
+    def _command_views(w: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(all 6 inputs, horizontal (2, 2), heading (1, 1), height (1, 1)): views for each block."""
+        return (w, w[0:4].reshape(2, 2), w[4:5].reshape(1, 1), w[5:6].reshape(1, 1))
+
     def _active_command(self, t: float) -> np.ndarray:
         """The command inputs in force at time ``t`` (s)."""
         cmds = self._cmds
         j = len(cmds) - 1
         while j > 0 and cmds[j][0] > t:
             j -= 1
-        return cmds[j][1]
+        return cmds[j][1][0]
 
     def _advance_output(self, t: float) -> None:
         cmds = self._cmds
@@ -401,7 +431,7 @@ class KalmanEstimator:
             end = cmds[j + 1][0] if j + 1 < len(cmds) and cmds[j + 1][0] < t else t
             if end > tc:
                 phi_t, gamma_t = self._output_model(end - tc)
-                out = out @ phi_t + cmds[j][1] @ gamma_t
+                out = out @ phi_t + cmds[j][1][0] @ gamma_t
                 tc = end
             if end >= t:
                 break
@@ -410,21 +440,21 @@ class KalmanEstimator:
         self._t_out = t
 
     def _output_model(self, h: float) -> tuple[np.ndarray, np.ndarray]:
-        """Block-diagonal (Phi^T (22, 22), Gamma^T (4, 22)) of all 22 output means for a step ``h`` (cached)."""
+        """Block-diagonal (Phi^T (22, 22), Gamma^T (6, 22)) of all 22 output means for a step ``h`` (cached)."""
         key = round(h * 1e7)
         mdl = self._out_cache.get(key)
         if mdl is None:
             phi_t = np.zeros((22, 22))
-            gamma_t = np.zeros((4, 22))
+            gamma_t = np.zeros((_N_INPUTS, 22))
             dh, dy, dz = (blk.discrete(h) for blk in self._blocks)
             phi_t[0:8, 0:8] = dh.phi_t
             phi_t[8:16, 8:16] = dh.phi_t
             phi_t[16:18, 16:18] = dy.phi_t
             phi_t[18:22, 18:22] = dz.phi_t
-            gamma_t[0, 0:8] = dh.gamma
-            gamma_t[1, 8:16] = dh.gamma
-            gamma_t[2, 16:18] = dy.gamma
-            gamma_t[3, 18:22] = dz.gamma
+            gamma_t[0:2, 0:8] = dh.gamma_t
+            gamma_t[2:4, 8:16] = dh.gamma_t
+            gamma_t[4, 16:18] = dy.gamma_t[0]
+            gamma_t[5, 18:22] = dz.gamma_t[0]
             if len(self._out_cache) >= 4096:
                 self._out_cache.clear()
             mdl = self._out_cache[key] = (phi_t, gamma_t)
@@ -511,7 +541,7 @@ class KalmanEstimator:
             theta, phi = nx * cp + ny * sp, nx * sp - ny * cp
             ct = math.cos(theta)
             fz_world = -math.sin(theta) * m.ax + ct * math.sin(phi) * m.ay + ct * math.cos(phi) * m.az
-            w_z = float(self._active_command(self._core[2][0])[3])
+            w_z = float(self._active_command(self._core[2][0])[5])
             ok &= self._update(2, "acc_z", "row", self._accz_row, (fz_world - self._g - w_z,), r["acc"], 1)
         elif isinstance(m, LoadAngle):
             self._advance_core(0, t)

@@ -5,7 +5,7 @@ batch of 2; heading and height have a batch of 1). A block holds no state; it gi
 for a step ``h`` (cached per step, so a run with fixed sensor and control rates computes each matrix once)
 and the two Kalman operations on caller-owned arrays ``x`` (batch, n) and ``P`` (batch, n, n).
 
-Discretization: ``Phi = expm(A h)`` and the zero-order-hold input column ``gamma = int_0^h expm(A s) b ds``
+Discretization: ``Phi = expm(A h)`` and the zero-order-hold input matrix ``Gamma = int_0^h expm(A s) B ds``
 from one matrix exponential of the augmented matrix; the process-noise covariance ``Q(h)`` by Van Loan's
 method (``filterpy.common.van_loan_discretization``) from the diagonal continuous spectral densities.
 """
@@ -21,16 +21,19 @@ from scipy.linalg import expm
 
 
 class Discrete(NamedTuple):
-    """Discretized model for one step: Phi (n, n), its transpose, the input column gamma (n,), Q (n, n)."""
+    """Discretized model for one step: Phi (n, n), its transpose, the transposed input matrix Gamma^T (k, n),
+    Q (n, n)."""
 
     phi: np.ndarray
     phi_t: np.ndarray
-    gamma: np.ndarray
+    gamma_t: np.ndarray
     q: np.ndarray
 
 
 class LinearBlock:
-    """Model ``x' = A x + b w + G nu``, ``nu`` unit white noise, ``G G^T = diag(q_c)`` (spectral densities).
+    """Model ``x' = A x + B w + G nu``, ``nu`` unit white noise, ``G G^T = diag(q_c)`` (spectral densities).
+
+    b: the input matrix B (n, k), or one column (n,).
 
     batch: number of identical channels filtered side by side (independent, same model).
     """
@@ -43,7 +46,7 @@ class LinearBlock:
     def __init__(self, a: np.ndarray, b: Sequence[float], q_c: Sequence[float], batch: int) -> None:
         self.a = np.asarray(a, dtype=float)
         self.n = self.a.shape[0]
-        self.b = np.asarray(b, dtype=float).reshape(self.n)
+        self.b = np.asarray(b, dtype=float).reshape(self.n, -1)
         self.g = np.diag(np.sqrt(np.asarray(q_c, dtype=float)))
         self.batch = batch
         model = self.a.tobytes() + self.b.tobytes() + self.g.tobytes()
@@ -63,27 +66,27 @@ class LinearBlock:
         return d
 
     def _discretize(self, h: float) -> Discrete:
-        n = self.n
-        m = np.zeros((n + 1, n + 1))
+        n, k = self.n, self.b.shape[1]
+        m = np.zeros((n + k, n + k))
         m[:n, :n] = self.a * h
-        m[:n, n] = self.b * h
+        m[:n, n:] = self.b * h
         e = expm(m)
         phi = np.ascontiguousarray(e[:n, :n])
-        gamma = e[:n, n].copy()
+        gamma_t = np.ascontiguousarray(e[:n, n:].T)
         if h > 0.0:
             _, q = van_loan_discretization(self.a, self.g, h)
             q = 0.5 * (q + q.T)
         else:
             q = np.zeros((n, n))
-        return Discrete(phi, np.ascontiguousarray(phi.T), gamma, q)
+        return Discrete(phi, np.ascontiguousarray(phi.T), gamma_t, q)
 
     # Kalman operations on caller-owned arrays ---------------------------------------------------------------
     # The channels of a batch share one model, one measurement row and one noise, so they share one covariance
     # P (n, n); only their means x (batch, n) differ.
     def predict_mean(self, x: np.ndarray, h: float, w: np.ndarray) -> np.ndarray:
-        """Mean after ``h`` s with the input ``w`` (batch,) held: ``x Phi^T + w gamma`` (new array)."""
+        """Mean after ``h`` s with the inputs ``w`` (batch, k) held: ``x Phi^T + w Gamma^T`` (new array)."""
         d = self.discrete(h)
-        return x @ d.phi_t + np.multiply.outer(w, d.gamma)
+        return x @ d.phi_t + w @ d.gamma_t
 
     def predict_cov(self, p: np.ndarray, h: float) -> np.ndarray:
         """Covariance after ``h`` s: ``Phi P Phi^T + Q`` (new array)."""

@@ -339,7 +339,7 @@ def test_linear_block_matches_filterpy() -> None:
     p = p + 0.01 * np.outer(x[0], x[0])
     kfs = []
     for c in range(2):
-        kf = KalmanFilter(dim_x=8, dim_z=2, dim_u=1)
+        kf = KalmanFilter(dim_x=8, dim_z=2, dim_u=2)
         kf.x = x[c].reshape(8, 1).copy()
         kf.P = p.copy()
         kfs.append(kf)
@@ -349,7 +349,7 @@ def test_linear_block_matches_filterpy() -> None:
     for step in range(20):
         h = (0.004, 0.01, 0.0033)[step % 3]
         d = blk.discrete(h)
-        w = rng.normal(size=2)
+        w = rng.normal(size=(2, 2))
         x = blk.predict_mean(x, h, w)
         p = blk.predict_cov(p, h)
         z = tuple(rng.normal(size=4).tolist())
@@ -357,8 +357,8 @@ def test_linear_block_matches_filterpy() -> None:
         za = tuple(rng.normal(size=2).tolist())
         LinearBlock.update_row(x, p, row, za, 0.04, math.inf)
         for c, kf in enumerate(kfs):
-            kf.F, kf.Q, kf.B = d.phi, d.q, d.gamma.reshape(8, 1)
-            kf.predict(u=np.array([[w[c]]]))
+            kf.F, kf.Q, kf.B = d.phi, d.q, d.gamma_t.T
+            kf.predict(u=w[c].reshape(2, 1))
             kf.update(np.array(z[2 * c:2 * c + 2]).reshape(2, 1), R=np.diag([4e-4, 9e-4]), H=np.eye(8)[[0, 1]])
             kf.update(np.array([[za[c]]]), R=np.array([[0.04]]), H=row.reshape(1, 8))
     for c, kf in enumerate(kfs):
@@ -410,3 +410,25 @@ def test_sensorless_observability() -> None:
     assert _observable_rank(a, [e[1], e[4], e[5], acc]) == 7
     # the accelerometer alone with the attitude already pins the swing-plus-forces combination k a + d + b
     assert _observable_rank(a, [e[4], e[5], acc]) < 8
+
+
+def test_model_inputs_are_exact_at_the_true_state() -> None:
+    """With the estimate equal to the truth, the swing acceleration (linear term + nonlinear remainder) and the
+    vertical acceleration the filter predicts equal the plant's, even for large swings and tilts."""
+    r, rd = cable_from_planar(0.4, -0.3, 1.0, 0.5)
+    x = dynamics.make_state(euler=(0.2, -0.15, 0.6), euler_rate=(0.3, -0.2, 0.1), cable=r, cable_rate=rd)
+    est = KalmanEstimator(V, load_sensor=True, rate_hz=100.0)
+    est.initialize(0.0, truth_state(x))
+    thrust = 7.3
+    est.push_command(0.0, thrust, (0.0, 0.0, 0.0))
+    w = est._cmds[-1][1][0]
+    u = dynamics.make_input(thrust)
+    h = 1e-6
+    ay, ax, ayd, axd = planar_swing(*x[12:18])
+    _, _, ayd2, axd2 = planar_swing(*dynamics.rk4_step(x, u, P, h)[12:18])
+    nx, ny, _, _ = world_tilt(*x[6:12])
+    w2 = V.pendulum_frequency**2
+    assert -w2 * (ay + nx) + w[1] == pytest.approx((ayd2 - ayd) / h, rel=1e-5)
+    assert -w2 * (ax + ny) + w[3] == pytest.approx((axd2 - axd) / h, rel=1e-5)
+    assert w[5] == pytest.approx(dynamics.derivative(0.0, x, u, P)[5], rel=1e-12)
+    assert abs(w[1]) > 1.0  # the remainder matters at these angles
