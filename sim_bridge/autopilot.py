@@ -33,6 +33,7 @@ from estimators.frames import (
     frd_to_model_body,
     model_body_to_frd,
     model_quaternion_to_ned,
+    ned_euler_to_model,
     ned_quaternion_to_model,
     ned_to_model_vector,
 )
@@ -619,7 +620,7 @@ class Autopilot:
             qm = ned_quaternion_to_model(q[0] / nq, q[1] / nq, q[2] / nq, q[3] / nq)
             yaw_ff = 0.0
             if not (mask & 4) and math.isfinite(msg.body_yaw_rate):
-                yaw_ff = -msg.body_yaw_rate  # NED yaw rate -> NWU (about +z up)
+                yaw_ff = ned_to_model_vector(0.0, 0.0, msg.body_yaw_rate)[2]  # about world down -> about up
             self.sp_kind, self.sp_q, self.sp_yaw_ff = "att", qm, yaw_ff
             if not px4 and not (mask & 7):
                 self.sp_rates = frd_to_model_body(msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate)
@@ -659,7 +660,8 @@ class Autopilot:
                        pos[2] if not mask & 4 else None)
         self.sp_vel = (vel[0] if not mask & 8 else 0.0, vel[1] if not mask & 16 else 0.0,
                        vel[2] if not mask & 32 else 0.0)
-        self.sp_yaw = -msg.yaw if not (mask & 1024) and math.isfinite(msg.yaw) else None
+        self.sp_yaw = (ned_euler_to_model(0.0, 0.0, msg.yaw)[2] if not (mask & 1024) and math.isfinite(msg.yaw)
+                       else None)
         self.sp_kind = "pos"
         self.sp_time_us = self.t_us
         self.counters["setpoints_accepted"] += 1

@@ -372,16 +372,17 @@ def test_px4_position_and_actuator_setpoints_in_offboard() -> None:
         e.wait_heartbeat()
         e.wait_ready()
         e.command(MAV_CMD_SET_MESSAGE_INTERVAL, 32, 10000)
-        mask_pos = 0b110111111000  # position only + no yaw rate (yaw used)
+        mask_pos = 0b100111111000  # position and yaw; velocity, acceleration, yaw rate ignored
 
         def pos_sp() -> None:
-            e.mav.set_position_target_local_ned_send(0, 1, 1, 1, mask_pos, 1.0, -0.5, -2.0, 0, 0, 0, 0, 0, 0, 0.0, 0)
+            e.mav.set_position_target_local_ned_send(0, 1, 1, 1, mask_pos, 1.0, -0.5, -2.0, 0, 0, 0, 0, 0, 0, 0.5, 0)
 
         _lockstep_steps(e, pos_sp, 5)
         assert e.command(MAV_CMD_ARM, 1, 0).result == 0
         assert e.command(MAV_CMD_DO_SET_MODE, 1, 6, 0).result == 0
         p = _lockstep_steps(e, pos_sp, 1000)  # 10 s
         assert (p.x, p.y, p.z) == pytest.approx((1.0, -0.5, -2.0), abs=0.1)
+        assert e.latest("ATTITUDE").yaw == pytest.approx(0.5, abs=0.03)  # NED yaw: 0.5 rad east of north
         # PX4 <= v1.13 actuator controls: thrust above hover with zero torques climbs straight up
         hover = V.hover_thrust_normalized
 
