@@ -63,6 +63,8 @@ NON_VEHICLE_TYPES = frozenset({6, 18, 26, 27, 30, 31})
 PX4_MAIN_MODE_OFFBOARD = 6
 ARDUPILOT_COPTER_GUIDED = (4, 20)  # GUIDED, GUIDED_NOGPS
 SETPOINT_TYPES = ("SET_ATTITUDE_TARGET", "SET_ACTUATOR_CONTROL_TARGET")
+#: a vehicle clock (ATTITUDE time_boot_ms) going back by more than this (s) is a reboot
+REBOOT_JUMP_S = 1.0
 TELEMETRY_TYPES = frozenset({"ATTITUDE", "ATTITUDE_QUATERNION", "LOCAL_POSITION_NED", "ODOMETRY", "HIGHRES_IMU",
                              "SCALED_IMU", "DEBUG_VECT"})
 
@@ -250,9 +252,15 @@ def inventory(sc: Scan) -> dict[str, Any]:
         })
     by_kind = {k: 0 for k in ("PositionVelocity", "Attitude", "Imu", "LoadAngle")}
     load_system = False
+    resets = 0
+    t_att = -math.inf
     for e in sc.events:
         if e.kind == "m" and e.sysid == ap:
             by_kind[type(e.payload).__name__] += 1
+            if isinstance(e.payload, Attitude):
+                if e.payload.t < t_att - REBOOT_JUMP_S:
+                    resets += 1
+                t_att = e.payload.t
     for (sid, _), info in sc.systems.items():
         hb = info.heartbeat
         if sid != ap and "GLOBAL_POSITION_INT" in info.messages and (hb is None or hb[0] not in NON_VEHICLE_TYPES):
@@ -272,6 +280,9 @@ def inventory(sc: Scan) -> dict[str, Any]:
                        "estimator and controller are for multirotors; not replayed")
     elif vehicle_class == "other":
         missing.append(f"vehicle type is {type_name(mt)}: not a multirotor; not replayed")
+    if resets:
+        missing.append(f"the vehicle's clock went back {resets} time(s) (reboots): each boot is replayed with a "
+                       "fresh estimator; --from / --to select by vehicle time, which repeats across boots")
     if by_kind["Attitude"] == 0:
         missing.append("no ATTITUDE telemetry from the autopilot: the estimator cannot run")
     if by_kind["PositionVelocity"] == 0:
@@ -296,6 +307,7 @@ def inventory(sc: Scan) -> dict[str, Any]:
         "has_local_position": by_kind["PositionVelocity"] > 0,
         "has_imu": by_kind["Imu"] > 0,
         "heartbeats": sc.heartbeats,
+        "boots": resets + 1,
         "offboard_heartbeats": sc.offboard_heartbeats,
         "setpoints_to_autopilot": sp_to_ap,
         "setpoint_messages": dict(sc.setpoint_targets),
@@ -843,6 +855,7 @@ def _replay_grid(events: list[Event], estimator: Any, vehicle: Vehicle, rate: fl
     last_at: tuple[float, ...] = (nan,) * 5
     offboard = nan
     n = len(events)
+    resets = 0
     for idx, e in enumerate(events):
         if progress is not None and idx % 4000 == 0:
             progress(idx / n)
@@ -851,6 +864,15 @@ def _replay_grid(events: list[Event], estimator: Any, vehicle: Vehicle, rate: fl
             m = e.payload
             if m.t < t_from or m.t > t_to:
                 continue
+            if isinstance(m, Attitude) and m.t < vnow - REBOOT_JUMP_S:
+                # the vehicle's clock went back: a reboot. Start a fresh filter from the telemetry that follows.
+                resets += 1
+                after = [f.payload for f in events[idx:idx + 4000] if f.kind == "m"]
+                estimator.initialize(m.t, initial_guess(
+                    vehicle, next((x for x in after if isinstance(x, PositionVelocity)), None), m,
+                    next((x for x in after if isinstance(x, LoadAngle)), None) if load_sensor else None))
+                vnow = m.t
+                next_tick = m.t + period
             if m.t > vnow:
                 vnow = m.t
             while next_tick <= vnow:
@@ -867,7 +889,7 @@ def _replay_grid(events: list[Event], estimator: Any, vehicle: Vehicle, rate: fl
             offboard = 1.0 if e.payload else 0.0
         elif kind == "at":
             last_at = (*e.payload[0], e.payload[1])
-    return rows, {"controller_ran": False, "t_init": t_init}
+    return rows, {"controller_ran": False, "t_init": t_init, "clock_resets": resets}
 
 
 def _stats(x: np.ndarray) -> dict[str, float | None]:

@@ -255,3 +255,14 @@ def test_progress_bar_draws_on_stderr(capsys: pytest.CaptureFixture[str]) -> Non
         bar(f)
     err = capsys.readouterr().err
     assert err.count("%") == 3 and " 50%" in err and "100%" in err and err.endswith("\n")
+
+
+def test_a_reboot_in_the_log_restarts_the_estimator(tmp_path: Path) -> None:
+    path = tmp_path / "two-boots.tlog"
+    path.write_bytes(flight_log(LogSpec(seconds=1.5, boot_s=30.0)) + flight_log(LogSpec(seconds=1.5, boot_s=5.0)))
+    code, m = _replay_cli(path, tmp_path / "r", "--no-figures")
+    assert code == 0
+    assert m["log"]["boots"] == 2 and any("reboot" in s for s in m["log"]["missing"])
+    t = _csv_columns(tmp_path / "r" / "timeseries.csv")["t"]
+    assert ((t > 30.0) & (t < 31.6)).sum() > 300 and ((t > 5.0) & (t < 6.6)).sum() > 300
+    assert m["estimation"]["all_finite"] and m["estimation"]["alpha_x_vs_sensor"]["rms"] < 0.02
