@@ -197,6 +197,8 @@ class KalmanEstimator:
         self._stats = {
             "accepted": 0, "late_dropped": 0, "out_of_order": 0, "gated_outliers": 0, "nan_rejected": 0,
             "gate_reopened": 0, "commands_rejected": 0, "not_used": 0, "nonfinite_resets": 0,
+            "gated_pos": 0, "gated_z": 0, "gated_tilt": 0, "gated_psi": 0, "gated_acc": 0, "gated_acc_z": 0,
+            "gated_load": 0,
         }
         self._out_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._initialized = False
@@ -363,7 +365,8 @@ class KalmanEstimator:
     def stats(self) -> dict[str, int]:
         """Counters: accepted (records fused), late_dropped, out_of_order (arrived after a newer one; still
         fused), gated_outliers (records with at least one gated update), nan_rejected, gate_reopened,
-        commands_rejected, not_used (cable-angle records in sensorless mode), nonfinite_resets, buffered."""
+        commands_rejected, not_used (cable-angle records in sensorless mode), nonfinite_resets, buffered, and
+        gated_<stream>: refused updates per stream (pos, z, tilt, psi, acc, acc_z, load)."""
         out = dict(self._stats)
         out["buffered"] = len(self._pending) if self._initialized else 0
         return out
@@ -482,6 +485,7 @@ class KalmanEstimator:
         fn = _UPDATES[kind]
         dx = fn(core[1], core[2], arg, z, r, self._gate[dof])
         if dx is None:
+            self._stats["gated_" + name] += 1
             run = self._gated_run[name] + 1
             if run <= self.tuning.gate_reopen:
                 self._gated_run[name] = run
