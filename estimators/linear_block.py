@@ -53,6 +53,7 @@ class LinearBlock:
         if len(self._SHARED) > 64:
             self._SHARED.clear()
         self._cache: dict[int, Discrete] = self._SHARED.setdefault(model, {})
+        self._n_predict = 0
 
     def discrete(self, h: float) -> Discrete:
         """The discretized model for a step of ``h`` seconds (>= 0), cached per 0.1 microsecond."""
@@ -92,7 +93,10 @@ class LinearBlock:
         """Covariance after ``h`` s: ``Phi P Phi^T + Q`` (new array)."""
         d = self.discrete(h)
         p = d.phi @ p @ d.phi_t + d.q
-        return 0.5 * (p + p.T)
+        self._n_predict += 1
+        if self._n_predict % 16 == 0:  # the updates keep P symmetric up to rounding; re-symmetrize now and then
+            p = 0.5 * (p + p.T)
+        return p
 
     @staticmethod
     def update_states(

@@ -166,7 +166,7 @@ def test_tracks_the_plant(load_sensor: bool, swing_deg: float) -> None:
     assert swing_rms_deg(res, 2.0) < swing_deg
     assert rms_after(res, "Fx0", 2.0) < 0.01 and rms_after(res, "Fy0", 2.0) < 0.01  # m
     assert rms_after(res, "Fx1", 2.0) < 0.05  # m/s
-    assert rms_after(res, "z", 2.0) < 0.01
+    assert rms_after(res, "z", 2.0) < 0.015  # position noise is 3 cm vertical
     assert math.degrees(rms_after(res, "psi", 2.0)) < 0.5
     assert math.degrees(max(rms_after(res, "phi", 2.0), rms_after(res, "theta", 2.0))) < 0.2
     st = res["stats"]
