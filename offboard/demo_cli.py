@@ -69,7 +69,7 @@ class EmulatorThread:
                 "--lockstep" if lockstep else "--realtime", "--lockstep-period", repr(period),
                 "--attitude-model", attitude_model, "--noise", repr(noise)]
         if lockstep:
-            argv += ["--lockstep-grace", "0.1"]
+            argv += ["--lockstep-grace", "1.0"]  # free-run only when the loop is really not streaming
         if loss > 0.0:
             argv += ["--loss-in", repr(loss), "--loss-out", repr(loss)]
         if vehicle:

@@ -38,6 +38,7 @@ exceeded a period.
 from __future__ import annotations
 
 import contextlib
+import copy
 import logging
 import math
 import select
@@ -378,7 +379,7 @@ class FlightLoop:
         self.event("phase", f"primed the setpoint stream: {n} setpoints over {seconds:g} s")
 
     def _approach(self, settle_s: float = 0.5, timeout_s: float = 30.0) -> None:
-        """Hold the position goal (the reference's start) until the vehicle is within 3 cm, slower than 5 cm/s,
+        """Hold the position goal (the reference's start) until the vehicle is within 1 cm, slower than 3 cm/s,
         with its swing under 0.02 rad, for ``settle_s`` of vehicle time."""
         assert self.goal is not None
         gx, gy, gz, _ = self.goal
@@ -388,8 +389,8 @@ class FlightLoop:
             self.stream_hover()
             now = self._now_vehicle()
             p, ld = self.last_pos, self.last_load
-            ok = p is not None and math.sqrt((p.x - gx) ** 2 + (p.y - gy) ** 2 + (p.z - gz) ** 2) < 0.03 and \
-                math.sqrt(p.vx * p.vx + p.vy * p.vy + p.vz * p.vz) < 0.05 and \
+            ok = p is not None and math.sqrt((p.x - gx) ** 2 + (p.y - gy) ** 2 + (p.z - gz) ** 2) < 0.01 and \
+                math.sqrt(p.vx * p.vx + p.vy * p.vy + p.vz * p.vz) < 0.03 and \
                 (ld is None or math.hypot(ld.alpha_x, ld.alpha_y) < 0.02)
             if not ok:
                 settled_since = None
@@ -428,10 +429,12 @@ class FlightLoop:
         # give the load-angle sensor a moment to show up
         self.mgr.wait_for(lambda: (self._read() or True) and self.last_load is not None, 0.5)
         self.mgr.check_vehicle_constants(self.vehicle)
+        self.initialize_estimator(warm_up=True)
         self.event("phase", "preflight ok: " + ", ".join(f"{k}" for k in sorted(self.last_rx_local)))
 
-    def initialize_estimator(self) -> None:
-        """Initialize the filter from the latest telemetry (vehicle at rest, swing from the sensor or 0)."""
+    def initialize_estimator(self, warm_up: bool = False) -> None:
+        """Initialize the filter from the latest telemetry (vehicle at rest, swing from the sensor or 0);
+        ``warm_up``: only to warm a copy up (before take-off, while nothing has to be streamed)."""
         a, p = self.last_att, self.last_pos
         assert a is not None and p is not None
         ax = self.last_load.alpha_x if self.last_load is not None else 0.0
@@ -442,8 +445,34 @@ class FlightLoop:
                              p.z, p.vz, a.phi, a.theta, a.psi, 0.0, 0.0, 0.0, ax, ay, 0.0, 0.0)
         t0 = max(a.t, p.t)
         self.estimator.initialize(t0, guess)
+        if warm_up:
+            self._warm_up(t0)
+            return
         self.estimator_ready = True
         self.t_vehicle = t0
+
+    def _warm_up(self, t0: float, max_step_ms: int = 60) -> None:
+        """Run a copy of the freshly initialized filter through steps of 1..``max_step_ms`` ms (the lengths a
+        real-time loop on the 1 ms vehicle clock produces), so that its per-step-length discretizations are
+        computed before the flight, not in the first ticks (where each new length costs milliseconds and a slow
+        tick makes longer, new steps: a spiral). The copy is discarded."""
+        try:
+            scratch = copy.deepcopy(self.estimator)
+        except Exception:  # an estimator that cannot be copied simply is not warmed up
+            return
+        a, p = self.last_att, self.last_pos
+        assert a is not None and p is not None
+        hover = self.vehicle.hover_thrust
+        t = t0
+        for h in range(1, max_step_ms + 1):
+            t += h * 1e-3
+            for lag in (0.001, 0.002, 0.003):
+                scratch.push(a._replace(t=t - lag))
+                scratch.push(p._replace(t=t - lag))
+                if self.last_load is not None:
+                    scratch.push(self.last_load._replace(t=t - lag))
+            scratch.push_command(t, hover, (0.0, 0.0, 0.0))
+            scratch.estimate(t)
 
     # ---------------------------------------------------------------------------------------- the flight ---
     def run(self) -> FlightResult:
@@ -494,7 +523,8 @@ class FlightLoop:
         cfg = self.cfg
         lockstep = cfg.lockstep
         t0 = self.t_vehicle
-        if lockstep:
+        if lockstep:  # one hover setpoint to get the emulator's current time
+            self._send(self._hover_sp(), self.t_vehicle)
             self._wait(cfg.lockstep_wait_s)
             if self.marker_t is not None:
                 t0 = self.marker_t
@@ -541,7 +571,9 @@ class FlightLoop:
                 if not got:
                     stats.deadline_ticks += 1
                     self.trigger_local = None
-                t_v = self.conn.clock.to_vehicle(time.monotonic())
+                # vehicle time of the tick, on the vehicle clock's 1 ms grid (the resolution of time_boot_ms): the
+                # filter then sees a small set of step lengths and reuses its discretizations
+                t_v = max(round(self.conn.clock.to_vehicle(time.monotonic()), 3), t_v)
             tick_start = time.monotonic()
             perf0 = time.perf_counter()
             self.t_vehicle = t_v
