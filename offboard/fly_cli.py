@@ -142,10 +142,12 @@ def fly(args: argparse.Namespace, *, lockstep: bool, takeoff: bool = True, truth
     params = smc.ControllerParams.for_vehicle(vehicle, switching=args.switching, epsilon=args.epsilon)
     mapper = CommandMapper(vehicle, MappingConfig(output=args.output, mask=args.mask), AutopilotModel())
     tlog_path = out_dir / "flight.tlog"
+    manager: Any = None
     if backend == "mavsdk":
-        from offboard.link.mavsdk_backend import MavsdkConnection
+        from offboard.link.mavsdk_backend import MavsdkConnection, MavsdkManager
 
-        conn: Any = MavsdkConnection(args.connect, tlog_path=tlog_path)
+        conn: Any = MavsdkConnection(args.connect, baud=getattr(args, "baud", None), tlog_path=tlog_path)
+        manager = MavsdkManager(conn)
     else:
         conn = MavConnection(args.connect, baud=getattr(args, "baud", None), tlog_path=tlog_path)
     wall0 = time.perf_counter()
@@ -156,7 +158,8 @@ def fly(args: argparse.Namespace, *, lockstep: bool, takeoff: bool = True, truth
         mapper.set_autopilot(AutopilotModel(flavour=info.flavour))
         load_sensor = True
         est = make_estimator("kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate)
-        loop = FlightLoop(conn, vehicle, scenario.reference, duration, params, mapper, est, cfg, truth_probe)
+        loop = FlightLoop(conn, vehicle, scenario.reference, duration, params, mapper, est, cfg, truth_probe,
+                          manager=manager)
         if not quiet:
             print(f"slung fly: {info.flavour} (system {info.system}) on {args.connect}; {scenario.name}, "
                   f"{duration:g} s, {args.output} output at {args.rate:g} Hz"
@@ -166,7 +169,7 @@ def fly(args: argparse.Namespace, *, lockstep: bool, takeoff: bool = True, truth
             result.warnings.append("no load-angle telemetry: the filter estimated the swing from the IMU")
         link = {"received": conn.stats.received, "sent": conn.stats.sent, "bad_data": conn.stats.bad_data,
                 "by_type": dict(conn.stats.by_type), "clock_source": conn.clock.source,
-                "tlog_records": conn.tlog.records if conn.tlog is not None else 0}
+                "tlog_records": conn.tlog.records if conn.tlog is not None else 0, "backend": backend}
     finally:
         conn.close()
     wall = time.perf_counter() - wall0
