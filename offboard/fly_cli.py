@@ -159,7 +159,8 @@ def fly(args: argparse.Namespace, *, lockstep: bool, takeoff: bool = True, truth
         load_sensor = True
         est = make_estimator("kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate)
         loop = FlightLoop(conn, vehicle, scenario.reference, duration, params, mapper, est, cfg, truth_probe,
-                          manager=manager)
+                          manager=manager, estimator_factory=lambda: make_estimator(
+                              "kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate))
         if not quiet:
             print(f"slung fly: {info.flavour} (system {info.system}) on {args.connect}; {scenario.name}, "
                   f"{duration:g} s, {args.output} output at {args.rate:g} Hz"

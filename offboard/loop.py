@@ -38,7 +38,6 @@ exceeded a period.
 from __future__ import annotations
 
 import contextlib
-import copy
 import logging
 import math
 import select
@@ -147,6 +146,7 @@ class LoopStats:
     ticks: int = 0
     elapsed_s: float = 0.0
     compute: list[float] = field(default_factory=list)
+    estimator: list[float] = field(default_factory=list)
     latency: list[float] = field(default_factory=list)
     gaps: list[float] = field(default_factory=list)
     deadline_ticks: int = 0
@@ -166,6 +166,7 @@ class LoopStats:
             "elapsed_s": self.elapsed_s,
             "compute_us_p50": pct(self.compute, 50), "compute_us_p99": pct(self.compute, 99),
             "compute_us_max": pct(self.compute, 100),
+            "estimator_us_p50": pct(self.estimator, 50), "estimator_us_p99": pct(self.estimator, 99),
             "latency_us_p50": pct(self.latency, 50), "latency_us_p99": pct(self.latency, 99),
             "latency_samples": len(self.latency),
             "gap_us_p50": pct(self.gaps, 50), "gap_us_p99": pct(self.gaps, 99), "gap_us_max": pct(self.gaps, 100),
@@ -211,7 +212,8 @@ class FlightLoop:
 
     def __init__(self, conn: MavConnection, vehicle: Vehicle, reference: Any, duration: float,
                  params: smc.ControllerParams, mapper: CommandMapper, estimator: Any, config: LoopConfig,
-                 truth_probe: TruthProbe | None = None, manager: Manager | None = None) -> None:
+                 truth_probe: TruthProbe | None = None, manager: Manager | None = None,
+                 estimator_factory: Callable[[], Any] | None = None) -> None:
         config.validate()
         self.conn = conn
         self.vehicle = vehicle
@@ -222,6 +224,8 @@ class FlightLoop:
         self.estimator = estimator
         self.cfg = config
         self.truth_probe = truth_probe
+        self.estimator_factory = estimator_factory
+        self._guess: ControlState | None = None
         self.mgr = manager or Manager(conn)
         assert conn.vehicle is not None, "wait_heartbeat() first"
         self.target = (conn.vehicle.system, conn.vehicle.component)
@@ -444,24 +448,25 @@ class FlightLoop:
         guess = ControlState(flat_chain(k, p.x, p.vx, ay, 0.0, nx, nxd), flat_chain(k, p.y, p.vy, ax, 0.0, ny, nyd),
                              p.z, p.vz, a.phi, a.theta, a.psi, 0.0, 0.0, 0.0, ax, ay, 0.0, 0.0)
         t0 = max(a.t, p.t)
-        self.estimator.initialize(t0, guess)
+        self._guess = guess
         if warm_up:
             self._warm_up(t0)
             return
+        self.estimator.initialize(t0, guess)
         self.estimator_ready = True
         self.t_vehicle = t0
 
-    def _warm_up(self, t0: float, max_step_ms: int = 60) -> None:
-        """Run a copy of the freshly initialized filter through steps of 1..``max_step_ms`` ms (the lengths a
+    def _warm_up(self, t0: float, max_step_ms: int = 100) -> None:
+        """Run a scratch filter (``estimator_factory``) through steps of 1..``max_step_ms`` ms (the lengths a
         real-time loop on the 1 ms vehicle clock produces), so that its per-step-length discretizations are
         computed before the flight, not in the first ticks (where each new length costs milliseconds and a slow
-        tick makes longer, new steps: a spiral). The copy is discarded."""
-        try:
-            scratch = copy.deepcopy(self.estimator)
-        except Exception:  # an estimator that cannot be copied simply is not warmed up
+        tick makes longer, new steps: a spiral). The scratch filter is discarded."""
+        if self.estimator_factory is None:
             return
+        scratch = self.estimator_factory()  # a new instance shares the filter's class-level discretization cache
         a, p = self.last_att, self.last_pos
         assert a is not None and p is not None
+        scratch.initialize(t0, self._guess)
         hover = self.vehicle.hover_thrust
         t = t0
         for h in range(1, max_step_ms + 1):
@@ -584,7 +589,9 @@ class FlightLoop:
                 break
             self._watchdogs(t_v, tick_start)
             # ---- estimate, reference, control ------------------------------------------------------------
+            pe = time.perf_counter()
             est = est_f.estimate(t_v)
+            stats.estimator.append(time.perf_counter() - pe)
             if self._inject and self._injected("estimate", t_ref):
                 est = est._replace(theta=math.nan)
             ref = self.reference.sample(t_ref)
