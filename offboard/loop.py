@@ -25,6 +25,8 @@ Watchdogs (each ends offboard control by switching the vehicle to its hold mode,
     - ``estimator_divergence``: a non-finite estimate, or the estimated vehicle position more than
       ``divergence_m`` (default 1 m) from the autopilot's latest position;
     - ``swing_limit``: estimated swing ``hypot(alpha_x, alpha_y)`` above ``swing_limit_rad`` (default 0.8 rad);
+    - ``loop_overrun``: one estimator update took longer than ``stale_s`` (an overloaded computer, or the filter
+      catching up after a stall): the loop can no longer keep its deadlines;
     - ``signal``: SIGINT / SIGTERM -> ``signal_action`` (hold or land).
     After a hold / land request the loop keeps streaming a hover setpoint until the heartbeat shows the new mode
     (or ``exit_timeout_s`` passes), so the vehicle is never left in offboard mode with a dead stream.
@@ -226,6 +228,7 @@ class FlightLoop:
         self.truth_probe = truth_probe
         self.estimator_factory = estimator_factory
         self._guess: ControlState | None = None
+        self._att_arrival = 0.0
         self.mgr = manager or Manager(conn)
         assert conn.vehicle is not None, "wait_heartbeat() first"
         self.target = (conn.vehicle.system, conn.vehicle.component)
@@ -301,6 +304,7 @@ class FlightLoop:
             if isinstance(m, Attitude):
                 if math.isfinite(m.phi):
                     self.last_att = m
+                    self._att_arrival = r.t_local
                 if not self.cfg.lockstep:
                     self.trigger_local = r.t_local
                     self._triggered = True
@@ -408,6 +412,13 @@ class FlightLoop:
                 return
             if self._signal is not None:
                 raise _AbortError("signal", f"signal {self._signal} before the flight", self.cfg.signal_action)
+
+    def _vehicle_now(self) -> float:
+        """Current vehicle time (s) from the newest attitude sample and its arrival (real time)."""
+        a = self.last_att
+        if a is None:
+            return self.conn.clock.to_vehicle(time.monotonic())
+        return a.t + (time.monotonic() - self._att_arrival)
 
     def _now_vehicle(self) -> float:
         if self.cfg.lockstep:
@@ -534,7 +545,7 @@ class FlightLoop:
             if self.marker_t is not None:
                 t0 = self.marker_t
         else:
-            t0 = self.conn.clock.to_vehicle(time.monotonic())
+            t0 = round(self._vehicle_now(), 3)
         self._t0_meas = t0
         memory = smc.ControllerMemory()
         wall0 = time.monotonic()
@@ -576,9 +587,10 @@ class FlightLoop:
                 if not got:
                     stats.deadline_ticks += 1
                     self.trigger_local = None
-                # vehicle time of the tick, on the vehicle clock's 1 ms grid (the resolution of time_boot_ms): the
-                # filter then sees a small set of step lengths and reuses its discretizations
-                t_v = max(round(self.conn.clock.to_vehicle(time.monotonic()), 3), t_v)
+                # vehicle time of the tick: the newest ATTITUDE's sample time plus the local time since it arrived
+                # (robust to a drifting or slipping vehicle clock; behind the truth by the one-way link latency),
+                # on the 1 ms grid of time_boot_ms so that the filter sees a small set of step lengths
+                t_v = max(round(self._vehicle_now(), 3), t_v)
             tick_start = time.monotonic()
             perf0 = time.perf_counter()
             self.t_vehicle = t_v
@@ -591,7 +603,10 @@ class FlightLoop:
             # ---- estimate, reference, control ------------------------------------------------------------
             pe = time.perf_counter()
             est = est_f.estimate(t_v)
-            stats.estimator.append(time.perf_counter() - pe)
+            te = time.perf_counter() - pe
+            stats.estimator.append(te)
+            if te > cfg.stale_s:
+                raise _AbortError("loop_overrun", f"one filter update took {te:.3f} s (limit {cfg.stale_s:g} s)")
             if self._inject and self._injected("estimate", t_ref):
                 est = est._replace(theta=math.nan)
             ref = self.reference.sample(t_ref)
