@@ -208,7 +208,7 @@ class Emulator:
                         streaming = False
                         anchor_wall, anchor_t = time.monotonic(), self.t_us
                         continue
-                    r, _, _ = select.select(socks, [], [], wait)
+                    r, _, _ = select.select(socks, [], [], min(wait, 0.1))  # 0.1: notice stop() soon
                     if not r:
                         continue
                     n = self._receive_faulty_lockstep() if faulty else self._receive()

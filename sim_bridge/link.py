@@ -211,6 +211,10 @@ class Link:
         release = self.now + f.latency + (self.rng.random() * f.jitter if f.jitter > 0.0 else 0.0)
         release = max(release, self._last_out)
         self._last_out = release
+        if release <= self.now + 1e-9 and not self._out:  # no delay due: send now (a lockstep client may be
+            for ep in self.endpoints:  # waiting for this reply before it sends the next setpoint)
+                ep.sendto_all(buf)
+            return
         self._out.append((release, bytes(buf)))
 
     def flush_due(self) -> None:

@@ -290,3 +290,20 @@ def test_lockstep_is_deterministic_and_fast() -> None:
     assert t1 == t2  # bit-identical telemetry over the flight
     assert t1[-1][2] == pytest.approx(-2.0, abs=0.2)
     assert s1["lockstep_handshakes"] >= 300 and s1["mode"] == "OFFBOARD"
+
+
+def test_lockstep_with_fault_injection_answers_between_steps() -> None:
+    """With faults configured (here: a negligible loss), replies due now go out at once even while the lockstep
+    clock waits for the next setpoint (a client may wait for an ACK before it sends one)."""
+    with Emu("--lockstep", "--lockstep-grace", "5", "--est-ready", "0.2", "--loss-in", "1e-12",
+             "--loss-out", "1e-12") as e:
+        e.wait_heartbeat()
+        e.wait_ready()
+        for _ in range(10):
+            e.mav.set_attitude_target_send(0, 1, 1, 7, [1, 0, 0, 0], 0, 0, 0, 0.0)
+            assert e.recv("SYSTEM_TIME", 2.0) is not None
+        t0 = time.monotonic()
+        ack = e.command(MAV_CMD_ARM, 1, 0)
+        assert ack is not None and ack.result == 0 and time.monotonic() - t0 < 0.3
+        summary = e.stop()
+    assert summary["lockstep_handshakes"] == 10
