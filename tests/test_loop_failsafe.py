@@ -123,7 +123,7 @@ def test_telemetry_cut_leads_to_hold_within_limit(tmp_path: Path) -> None:
 
 
 def test_thirty_percent_packet_loss_flies_bounded_or_aborts_to_hold(tmp_path: Path) -> None:
-    m, _folder, emu = run_demo(demo_args(tmp_path, "--scenario", "hover", "--duration", "6", "--rate", "100",
+    m, _folder, emu = run_demo(demo_args(tmp_path, "--scenario", "hover", "--duration", "4", "--rate", "100",
                                         "--loss", "0.3"), quiet=True)
     lost = emu["link"]["rx"]["dropped_in"]
     assert lost > 100  # the loss really happened

@@ -266,7 +266,7 @@ class MavConnection:
         v = self._require_vehicle()
         self.send(self.mav.param_request_read_encode(v.system, v.component, name.encode("ascii"), -1))
 
-    def param_get(self, name: str, timeout: float = 1.0, retries: int = 2) -> float | None:
+    def param_get(self, name: str, timeout: float = 0.3, retries: int = 3) -> float | None:
         """Read a parameter (blocking up to ``timeout`` x ``retries``); None if the autopilot did not answer."""
         self.params.pop(name, None)
         for _ in range(retries):

@@ -1,0 +1,117 @@
+"""Loop pieces without a vehicle: configuration limits, statistics, the staleness / divergence / swing watchdogs on
+a loop fed by hand, and the rate-integrator model of the command mapping against the emulator's PI rate loop."""
+
+from __future__ import annotations
+
+import math
+import socket
+
+import numpy as np
+import pytest
+
+from estimators import frames
+from estimators.control_state import ControlState
+from estimators.measurements import Attitude, PositionVelocity
+from estimators.vehicle import Vehicle
+from offboard import smc
+from offboard.command_mapping import AutopilotModel, CommandMapper, MappingConfig, euler_rates_to_body
+from offboard.link.connection import MavConnection, VehicleInfo
+from offboard.loop import FlightLoop, LoopConfig, LoopStats, _AbortError
+from offboard.scenarios import make_scenario
+from sim_bridge.airframe import AttitudeController, default_rate_gains
+
+
+def test_config_limits() -> None:
+    LoopConfig().validate()
+    for bad in (LoopConfig(rate_hz=10.0), LoopConfig(rate_hz=2000.0), LoopConfig(stale_s=0.0),
+                LoopConfig(end_action="crash"), LoopConfig(prime_s=0.5)):
+        with pytest.raises(ValueError):
+            bad.validate()
+
+
+def test_stats_summary_percentiles_and_missed_fraction() -> None:
+    s = LoopStats(ticks=4, elapsed_s=2.0, compute=[1e-4, 2e-4, 3e-4, 4e-4], latency=[5e-4, 5e-4], missed=1)
+    d = s.summary(250.0)
+    assert d["rate_hz_achieved"] == 2.0 and d["missed_fraction"] == 0.25
+    assert d["compute_us_p50"] == pytest.approx(250.0) and d["compute_us_max"] == pytest.approx(400.0)
+    assert d["latency_us_p99"] == pytest.approx(500.0) and d["latency_samples"] == 2
+
+
+@pytest.fixture
+def loop() -> FlightLoop:
+    """A loop on a real (idle) UDP socket, never started: its watchdogs are called by hand."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    conn = MavConnection(f"udpin:127.0.0.1:{port}")
+    conn.vehicle = VehicleInfo(1, 1, "px4", 2)
+    v = Vehicle()
+    sc = make_scenario("hover")
+    lp = FlightLoop(conn, v, sc.reference, 5.0, smc.ControllerParams.for_vehicle(v), CommandMapper(v), None,
+                    LoopConfig(stale_s=0.1, divergence_m=1.0, swing_limit_rad=0.5))
+    yield lp
+    conn.close()
+
+
+def _est(x: float = 0.0, z: float = 1.0, ax: float = 0.0, ay: float = 0.0) -> ControlState:
+    return ControlState((x, 0.0, 0.0, 0.0, 0.0, 0.0), (0.0,) * 6, z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, ax, ay,
+                        0.0, 0.0)
+
+
+def test_staleness_watchdog_real_time_and_lockstep(loop: FlightLoop) -> None:
+    loop.last_rx_local = {"Attitude": 10.0, "PositionVelocity": 10.0}
+    loop._watchdogs(0.0, 10.09)  # 90 ms: fine
+    with pytest.raises(_AbortError) as e:
+        loop._watchdogs(0.0, 10.11)
+    assert e.value.kind == "telemetry_stale" and e.value.action == "hold"
+    loop.cfg = LoopConfig(lockstep=True, stale_s=0.1)
+    loop.last_att = Attitude(5.0, 0, 0, 0, 0, 0, 0)
+    loop.last_pos = PositionVelocity(4.95, 0, 0, 1, 0, 0, 0)
+    loop._watchdogs(5.04, 1e9)  # vehicle-time ages in lockstep: the wall clock does not matter
+    with pytest.raises(_AbortError):
+        loop._watchdogs(5.06, 0.0)  # the position is 0.11 s old
+
+
+def test_divergence_and_swing_watchdogs(loop: FlightLoop) -> None:
+    loop.last_pos = PositionVelocity(1.0, 0.3, 0.0, 1.0, 0.0, 0.0, 0.0)
+    loop._check_swing(_est(x=0.3 + 0.9))  # 0.9 m off: fine
+    with pytest.raises(_AbortError) as e:
+        loop._check_swing(_est(x=0.3 + 1.1))
+    assert e.value.kind == "estimator_divergence"
+    with pytest.raises(_AbortError) as e:
+        loop._check_swing(_est(x=math.nan))
+    assert e.value.kind == "estimator_divergence"
+    # swing: the flat output moves with the load, so keep the vehicle position consistent
+    ell = Vehicle().cable_length
+    loop._check_swing(_est(x=0.3 + ell * 0.4, ay=0.4))
+    with pytest.raises(_AbortError) as e:
+        loop._check_swing(_est(x=0.3 + ell * 0.4, ay=0.4, ax=0.35))
+    assert e.value.kind == "swing_limit"
+
+
+def test_rate_integrator_model_keeps_the_realized_torque_on_command() -> None:
+    """Constant command at a frozen state for 0.5 s: with the integrator model the emulator's PI rate loop delivers
+    the commanded torque at every tick; without it (rate_integral 0) the integrator adds up to its limit."""
+    v = Vehicle()
+    g = default_rate_gains(v)
+    ratio = tuple(i / p for i, p in zip(g.i, g.p))
+    tau = (0.05, -0.04, 0.02)
+    est = ControlState((0.0,) * 6, (0.0,) * 6, 1.0, 0.0, 0.05, -0.03, 0.4, 0.1, 0.0, 0.2, 0.0, 0.0, 0.0, 0.0)
+    w = euler_rates_to_body(est.phi, est.theta, est.phi_rate, est.theta_rate, est.psi_rate)
+    q = frames.euler_to_quaternion(est.phi, est.theta, est.psi)
+    errors = {}
+    for name, model in (("with", AutopilotModel(rate_integral=ratio)),
+                        ("without", AutopilotModel(rate_integral=(0.0, 0.0, 0.0)))):
+        m = CommandMapper(v, MappingConfig(max_rate=10.0), model)
+        ac = AttitudeController(v, 0.001)
+        worst = 0.0
+        for k in range(125):  # 0.5 s at 250 Hz, the emulator's loops at 1 kHz in between
+            sp = m.map(k * 0.004, smc.Command(v.hover_thrust, *tau, 0, 0, 0, 0, False, True), est)
+            rate_sp = ac.attitude_to_rates(q, frames.ned_quaternion_to_model(*sp.q))
+            for _ in range(4):
+                out = ac.rates_to_torque(rate_sp, w, integrate=True)
+            worst = max(worst, float(np.max(np.abs(np.subtract(out, tau)))))
+        errors[name] = worst
+    assert errors["with"] < 0.01 * v.roll_pitch_torque_max
+    assert errors["without"] > 0.1 * v.roll_pitch_torque_max
