@@ -16,6 +16,7 @@ Frames: setpoints arrive in NED / FRD and are converted to the model frame (NWU 
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import struct
@@ -59,6 +60,8 @@ from sim_bridge.telemetry import (
     msg_load_attitude,
     msg_load_global_position_int,
 )
+
+log = logging.getLogger(__name__)
 
 # MAV_RESULT
 ACCEPTED, TEMPORARILY_REJECTED, DENIED, UNSUPPORTED, FAILED = 0, 1, 2, 3, 4
@@ -188,7 +191,7 @@ class Autopilot:
         self.counters: dict[str, int] = {
             "setpoints_accepted": 0, "setpoints_rejected": 0, "setpoints_ignored": 0, "commands": 0,
             "commands_unsupported": 0, "statustexts": 0, "param_sets": 0, "failsafes": 0, "arms": 0,
-            "arm_refusals": 0, "mode_changes": 0, "mode_refusals": 0, "touchdowns": 0,
+            "arm_refusals": 0, "mode_changes": 0, "mode_refusals": 0, "touchdowns": 0, "handler_errors": 0,
         }
         self.mode_log: list[tuple[float, str]] = [(0.0, self.mode.name)]
         self._last_err_report_us = 0
@@ -445,8 +448,9 @@ class Autopilot:
             ep.add_peer(addr)
             try:
                 n += self._dispatch(msg)
-            except Exception:
-                rx.malformed += 1
+            except Exception:  # a message that breaks a handler must not stop the emulator: counted, logged
+                self.counters["handler_errors"] += 1
+                log.warning("error handling %s", msg.get_type(), exc_info=True)
         return n
 
     def _dispatch(self, msg: Any) -> int:

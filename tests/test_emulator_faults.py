@@ -128,6 +128,7 @@ def test_fuzz_classified_datagrams_counted_exactly_while_flying() -> None:
         assert rx[key] == expect[key], key
     assert rx["malformed"] == 0 and rx["unknown_msgid"] == 0
     assert summary["counters"]["setpoints_accepted"] == 0  # no fuzz packet got through as a setpoint
+    assert summary["counters"]["handler_errors"] == 0
 
 
 def test_fuzz_random_mutations_never_stop_the_emulator() -> None:
@@ -168,7 +169,7 @@ def test_fuzz_random_mutations_never_stop_the_emulator() -> None:
                 + rx["unknown_msgid"] + rx["unsigned_rejected"] + rx["bad_signature"])
     assert outcomes >= rx["datagrams"]  # every datagram was accounted for at least once
     assert rx["bad_crc"] > 1000 and rx["truncated"] > 1000 and rx["garbage_datagrams"] > 100
-    assert summary["nonfinite_resets"] == 0
+    assert summary["nonfinite_resets"] == 0 and summary["counters"]["handler_errors"] == 0
 
 
 def _raw_send(e: Emu, mav: apm.MAVLink, msg: Any) -> None:

@@ -89,3 +89,4 @@ def test_mavsdk_flies_the_emulator(flavor: str, autopilot: Autopilot, thrust: fl
     names = [m for _, m in summary["modes"]]
     assert ("OFFBOARD" if flavor == "px4" else "GUIDED") in names
     assert summary["link"]["rx"]["malformed"] == 0 and summary["link"]["rx"]["bad_crc"] == 0
+    assert summary["counters"]["handler_errors"] == 0  # every MAVSDK message handled without an internal error
