@@ -619,6 +619,38 @@ def _plan_from_setpoints(events: list[Event], meas_pos: list[int], meas: list[An
     return start, ticks
 
 
+def _find_start(events: list[Event], meas_pos: list[int], meas: list[Any], start: int, ticks: list[_Tick],
+                config: ReplayConfig, output: str, load_sensor: bool, make_estimator: Callable[..., Any],
+                n_check: int = 8) -> tuple[int, list[_Tick], str]:
+    """Where did the live loop initialize its filter? Without its tick log the tlog does not say: the loop may
+    have read a batch of telemetry between initializing and its first tick. Candidates, most likely first: right
+    before the first tick, right after each of the last three SYSTEM_TIME markers before it, then 1..8
+    measurements earlier. The first candidate whose replay reproduces the first ``n_check`` logged setpoints
+    exactly (float32) is taken; otherwise the first one. Returns (start, ticks, how it was chosen)."""
+    first = ticks[0]
+    before0 = start + first.n_push
+    clock_pos = [i for i, e in enumerate(events) if e.kind == "clock"]
+    first_ev = meas_pos[before0 - 1] + 1 if before0 > 0 else 0
+    c0 = bisect.bisect_right(clock_pos, first_ev) - 1
+    cands = [before0]
+    for c in range(c0, max(c0 - 3, -1), -1):
+        cands.append(bisect.bisect_left(meas_pos, clock_pos[c]))
+    cands += [before0 - j for j in range(1, 9)]
+    seen: set[int] = set()
+    for cand in cands:
+        if cand < 1 or cand > before0 or cand in seen:
+            continue
+        seen.add(cand)
+        trial = [tk._replace(n_push=tk.n_push + start - cand) for tk in ticks[:n_check]]
+        est = make_estimator(config.estimator, config.vehicle, load_sensor=load_sensor, rate_hz=config.rate_hz,
+                             delay_s=config.delay_s)
+        _, extra = _replay_ticks(events, meas_pos, meas, cand, trial, est, config, output, load_sensor, None)
+        if extra.get("cmp_exact") and all(extra["cmp_exact"]):
+            how = "filter start found by matching the first setpoints"
+            return cand, [tk._replace(n_push=tk.n_push + start - cand) for tk in ticks], how
+    return start, ticks, "no filter start reproduced the first setpoints: approximate"
+
+
 def replay(sc: Scan, inv: dict[str, Any], config: ReplayConfig,
            progress: Callable[[float], None] | None = None) -> ReplayResult:
     """Pass 2 (see module docstring). The log must be :func:`replayable`. ValueError when a live tick log is
@@ -644,6 +676,10 @@ def replay(sc: Scan, inv: dict[str, Any], config: ReplayConfig,
     elif sp_events:
         start, ticks = _plan_from_setpoints(events, meas_pos, meas, sp_events, output, config.rate_hz)
         source = "logged setpoints"
+        if ticks and config.reference is not None and config.t_from is None:
+            start, ticks, how = _find_start(events, meas_pos, meas, start, ticks, config, output, load_sensor,
+                                            make_estimator)
+            source += f" ({how})"
     else:
         start, ticks = 0, []
         source = "grid"

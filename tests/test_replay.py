@@ -32,24 +32,29 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def demo_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """Three short `slung demo` flights recorded for the replay: PX4 with attitude and with actuator output,
-    ArduPilot (GUIDED, throttle with angle boost) with attitude output."""
+    """Four short `slung demo` flights recorded for the replay: PX4 with attitude and with actuator output,
+    ArduPilot (GUIDED, throttle with angle boost) with attitude output, all lockstep, and PX4 in real time (the
+    loop's tick times then come from its clock, not from the emulator's markers)."""
     out = {}
-    for flavor, output in (("px4", "attitude"), ("px4", "actuator"), ("ardupilot", "attitude")):
-        d = tmp_path_factory.mktemp(f"demo-{flavor}-{output}")
+    for flavor, output, mode in (("px4", "attitude", "lockstep"), ("px4", "actuator", "lockstep"),
+                                 ("ardupilot", "attitude", "lockstep"), ("px4", "attitude", "realtime")):
+        name = f"{flavor}-{output}-{mode}"
+        d = tmp_path_factory.mktemp(f"demo-{name}")
         # the exit code is not asserted: a flight a watchdog ended early (a loaded test machine) must replay
         # exactly too; the replay tests check that there was a flight at all
-        main(["demo", "--flavor", flavor, "--duration", "1.5", "--output", output, "--no-figures", "--out", str(d)])
+        main(["demo", "--flavor", flavor, "--duration", "1.5", "--output", output, "--no-figures", "--out", str(d)]
+             + (["--realtime"] if mode == "realtime" else []))
         assert (d / "flight.tlog").is_file() and (d / "timeseries_live.csv").is_file()
-        out[f"{flavor}-{output}"] = d
+        out[name] = d
     return out
 
 
-@pytest.mark.parametrize("run_name", ["px4-attitude", "px4-actuator", "ardupilot-attitude"])
+@pytest.mark.parametrize("run_name", ["px4-attitude-lockstep", "px4-actuator-lockstep", "ardupilot-attitude-lockstep",
+                                      "px4-attitude-realtime"])
 def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
         demo_runs: dict[str, Path], run_name: str, tmp_path: Path) -> None:
     run = demo_runs[run_name]
-    flavor, output = run_name.split("-")
+    flavor, output, _ = run_name.split("-")
     code, m = _replay_cli(run / "flight.tlog", tmp_path / "r")
     assert code == 0
     live = _csv_columns(run / "timeseries_live.csv")
@@ -76,8 +81,9 @@ def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
 
 
 def test_replay_of_slung_demo_from_the_tlog_alone(demo_runs: dict[str, Path], tmp_path: Path) -> None:
-    """Without the live tick log the ticks are rebuilt from the lockstep markers and the setpoints in the tlog."""
-    run = demo_runs["px4-attitude"]
+    """Without the live tick log the ticks of a lockstep run are rebuilt from the emulator's markers and the
+    setpoints in the tlog, exactly."""
+    run = demo_runs["px4-attitude-lockstep"]
     code, m = _replay_cli(run / "flight.tlog", tmp_path / "r", "--no-live-log")
     assert code == 0
     live = _csv_columns(run / "timeseries_live.csv")
