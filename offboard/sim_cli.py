@@ -18,6 +18,7 @@ from offboard import sim as sim_mod
 from offboard import smc
 from offboard.outputs import prepare_output_dir
 from offboard.scenarios import SCENARIOS, make_scenario
+from sim_bridge.sensors import PRESETS as SENSOR_PRESETS
 
 
 def finite_float(text: str) -> float:
@@ -68,7 +69,7 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="simulated time in s (default: the scenario's)")
     p.add_argument("--seed", type=non_negative_int, default=0, metavar="N",
                    help="seed of disturbances and sensor noise")
-    p.add_argument("--sensors", choices=("ideal", "px4-typical"), default=None,
+    p.add_argument("--sensors", choices=SENSOR_PRESETS, default=None,
                    help="sensor models feeding the estimator (default: none, the controller sees the true state)")
     p.add_argument("--estimator", choices=("truth", "kf"), default="truth",
                    help="truth: the controller sees the true state; kf: the Kalman filter on the sensor data")
