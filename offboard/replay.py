@@ -225,6 +225,8 @@ def scan(messages: Iterable[tuple[float, Any]]) -> Scan:
             events.append(Event("at", sid, vt, lt, (tuple(float(v) for v in msg.q), float(msg.thrust))))
         elif kind == "SYSTEM_TIME":
             events.append(Event("clock", sid, vt, lt, msg.time_boot_ms * 1e-3))
+        elif kind == "EXTENDED_SYS_STATE":
+            events.append(Event("landed", sid, vt, lt, int(msg.landed_state)))
     if ap_sysid is None:
         ap_sysid = telemetry_sysid
     return Scan(systems, events, {}, ap_sysid, ap_kind, mav_type, hb_offboard, hb_total, mode_changes, sp_targets)
@@ -414,7 +416,8 @@ class ReplayConfig:
     controller's switching function; output / mask: None = from the logged setpoints; mapping: extra
     ``MappingConfig`` fields (limits); autopilot: ``AutopilotModel`` fields (flavour, attitude_p, rate_bandwidth,
     hover_thrust_norm, angle_boost; flavour defaults to the HEARTBEAT's); live: the live run's tick log, for an
-    exact replay.
+    exact replay; estimate_only: run the estimator on the grid over the whole log even where it holds an
+    offboard flight (no controller).
     """
 
     vehicle: Vehicle = field(default_factory=Vehicle)
@@ -432,6 +435,7 @@ class ReplayConfig:
     mapping: dict[str, Any] | None = None
     autopilot: dict[str, Any] | None = None
     live: LiveRun | None = None
+    estimate_only: bool = False
 
 
 EST_COLUMNS = (
@@ -661,7 +665,7 @@ def replay(sc: Scan, inv: dict[str, Any], config: ReplayConfig,
     ap = inv["autopilot_sysid"]
     vehicle = config.vehicle
     load_sensor = inv["has_load_sensor"] if config.load_sensor is None else config.load_sensor
-    events = [e for e in sc.events if e.kind not in ("m", "clock") or e.sysid == ap]
+    events = [e for e in sc.events if e.kind not in ("m", "clock", "landed") or e.sysid == ap]
     sp_all = [(i, e) for i, e in enumerate(events) if e.kind == "sp" and (e.sysid == ap or e.sysid == 0)]
     output = config.output or ("actuator" if any(isinstance(e.payload[0], ActuatorTarget) for _, e in sp_all)
                                else "attitude")
@@ -670,7 +674,10 @@ def replay(sc: Scan, inv: dict[str, Any], config: ReplayConfig,
     meas_pos = [i for i, e in enumerate(events) if e.kind == "m"]
     meas = [events[i].payload for i in meas_pos]
 
-    if sp_events and config.live is not None:
+    if config.estimate_only:
+        start, ticks = 0, []
+        source = "grid"
+    elif sp_events and config.live is not None:
         start, ticks = _plan_from_live(meas_pos, sp_events, config.live, output)
         source = "live tick log"
     elif sp_events:
@@ -870,28 +877,36 @@ def _compare(data: np.ndarray, cols: tuple[str, ...], output: str, controller_ra
 def _replay_grid(events: list[Event], estimator: Any, vehicle: Vehicle, rate: float, t_from: float, t_to: float,
                  load_sensor: bool, output: str, progress: Callable[[float], None] | None
                  ) -> tuple[list[tuple[float, ...]], dict[str, Any]]:
-    """Estimation only, on a fixed grid of vehicle time driven by the newest sample time (see module docstring)."""
+    """Estimation only, on a fixed grid of vehicle time driven by the newest sample time (see module docstring).
+
+    The filter has no ground contact in its model, so it runs only while the vehicle flies: from the first moment
+    attitude, position (and the cable angle, when used) have been reported and EXTENDED_SYS_STATE (when the log
+    has it) says IN_AIR, until it reports the vehicle landed (restarted at the next take-off) or the vehicle's clock
+    goes back (a reboot). Each start initializes the filter from the latest telemetry, as the live loop does.
+    The commands the vehicle flew are unknown: the filter is told hover thrust and no torque at every tick."""
     nan = math.nan
     nsp = 8 if output == "attitude" else 4
     tail = (nan,) * (8 + 2 * nsp)
-    meas = [e for e in events if e.kind == "m" and t_from <= e.payload.t <= t_to]
-    first_pv = next((e.payload for e in meas if isinstance(e.payload, PositionVelocity)), None)
-    first_att = next((e.payload for e in meas if isinstance(e.payload, Attitude)), None)
-    first_load = next((e.payload for e in meas if isinstance(e.payload, LoadAngle)), None) if load_sensor else None
     rows: list[tuple[float, ...]] = []
-    if not meas:
-        return rows, {"controller_ran": False}
-    t_init = meas[0].payload.t
-    estimator.initialize(t_init, initial_guess(vehicle, first_pv, first_att, first_load))
     period = 1.0 / rate
-    next_tick = t_init + period
+    hover_thrust = vehicle.hover_thrust
+    zero3 = (0.0, 0.0, 0.0)
+    has_landed_info = any(e.kind == "landed" for e in events)
+    airborne = not has_landed_info
+    running = False
+    last_att: Attitude | None = None
+    last_pv: PositionVelocity | None = None
+    last_ld: LoadAngle | None = None
     vnow = -math.inf
+    next_tick = math.inf
     last_load = (nan, nan)
     last_pos = (nan, nan, nan)
     last_at: tuple[float, ...] = (nan,) * 5
     offboard = nan
     n = len(events)
     resets = 0
+    starts = 0
+    t_init: float | None = None
     for idx, e in enumerate(events):
         if progress is not None and idx % 4000 == 0:
             progress(idx / n)
@@ -901,31 +916,50 @@ def _replay_grid(events: list[Event], estimator: Any, vehicle: Vehicle, rate: fl
             if m.t < t_from or m.t > t_to:
                 continue
             if isinstance(m, Attitude) and m.t < vnow - REBOOT_JUMP_S:
-                # the vehicle's clock went back: a reboot. Start a fresh filter from the telemetry that follows.
-                resets += 1
-                after = [f.payload for f in events[idx:idx + 4000] if f.kind == "m"]
-                estimator.initialize(m.t, initial_guess(
-                    vehicle, next((x for x in after if isinstance(x, PositionVelocity)), None), m,
-                    next((x for x in after if isinstance(x, LoadAngle)), None) if load_sensor else None))
-                vnow = m.t
-                next_tick = m.t + period
+                resets += 1  # the vehicle's clock went back: a reboot; start afresh
+                running = False
+                last_pv = last_ld = None
+                vnow = -math.inf
+            if isinstance(m, Attitude):
+                last_att = m
+            elif isinstance(m, PositionVelocity):
+                last_pv = m
+                last_pos = (m.x, m.y, m.z)
+            elif isinstance(m, LoadAngle):
+                last_ld = m
+                last_load = (m.alpha_x, m.alpha_y)
+            if not running:
+                if airborne and last_att is not None and last_pv is not None and (last_ld is not None
+                                                                                  or not load_sensor):
+                    t0 = max(last_att.t, last_pv.t)
+                    estimator.initialize(t0, initial_guess(vehicle, last_pv, last_att,
+                                                           last_ld if load_sensor else None))
+                    estimator.push_command(t0, hover_thrust, zero3)
+                    running = True
+                    starts += 1
+                    t_init = t0 if t_init is None else t_init
+                    vnow = t0
+                    next_tick = t0 + period
+                continue
             if m.t > vnow:
                 vnow = m.t
             while next_tick <= vnow:
                 est = estimator.estimate(next_tick)
+                estimator.push_command(next_tick, hover_thrust, zero3)
                 rows.append((next_tick, nan, e.lt, 0.0, *est.fx, *est.fy, *est[2:], *last_load, *last_pos, *tail,
                              *last_at, offboard, nan, nan))
                 next_tick += period
             estimator.push(m)
-            if isinstance(m, LoadAngle):
-                last_load = (m.alpha_x, m.alpha_y)
-            elif isinstance(m, PositionVelocity):
-                last_pos = (m.x, m.y, m.z)
+        elif kind == "landed":
+            airborne = e.payload == 2  # MAV_LANDED_STATE_IN_AIR
+            if not airborne:
+                running = False
         elif kind == "mode":
             offboard = 1.0 if e.payload else 0.0
         elif kind == "at":
             last_at = (*e.payload[0], e.payload[1])
-    return rows, {"controller_ran": False, "t_init": t_init, "clock_resets": resets}
+    return rows, {"controller_ran": False, "t_init": t_init, "clock_resets": resets, "filter_starts": starts,
+                  "airborne_gating": has_landed_info}
 
 
 def _stats(x: np.ndarray) -> dict[str, float | None]:
@@ -953,6 +987,8 @@ def _metrics(data: np.ndarray, cols: tuple[str, ...], inv: dict[str, Any], estim
         "estimator": config.estimator,
         "load_sensor_used": load_sensor,
         "initialized_at_s": extra.get("t_init"),
+        "filter_starts": extra.get("filter_starts", 1),
+        "airborne_only": bool(extra.get("airborne_gating", False)),
         "vehicle_time_span_s": [float(t[0]), float(t[-1])] if n else None,
         "estimator_stats": estimator.stats(),
         "all_finite": bool(np.all(np.isfinite(data[:, e0:e0 + len(EST_COLUMNS)]))) if n else True,

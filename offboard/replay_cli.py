@@ -61,6 +61,8 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="ignore the live run's timeseries_live.csv beside the log (replay from the tlog alone)")
     p.add_argument("--switching", choices=("sign", "smooth"), default=None,
                    help="controller switching function (default: the run's, else smooth)")
+    p.add_argument("--estimate-only", action="store_true",
+                   help="run only the estimator, on the --rate grid over the whole log (also outside offboard flight)")
     p.add_argument("--no-figures", action="store_true", help="write metrics and time series only")
 
 
@@ -119,7 +121,7 @@ def build_config(args: argparse.Namespace, meta: dict[str, Any], live: Any = Non
     return ReplayConfig(
         vehicle=vehicle, t_from=args.t_from, t_to=args.t_to, rate_hz=rate, load_sensor=load_sensor,
         reference=reference, switching=switching, epsilon=float(epsilon), output=cfg.get("output"),
-        mask=cfg.get("mask"), autopilot=autopilot, live=live,
+        mask=cfg.get("mask"), autopilot=autopilot, live=live, estimate_only=args.estimate_only,
     )
 
 

@@ -94,6 +94,17 @@ def test_replay_of_slung_demo_from_the_tlog_alone(demo_runs: dict[str, Path], tm
     np.testing.assert_array_equal(rep["Fx_d4"], live["est_fx4"])
 
 
+def test_estimate_only_over_a_whole_demo_log(demo_runs: dict[str, Path], tmp_path: Path) -> None:
+    """The estimator alone over the whole log (take-off and approach included, commands unknown): it runs while
+    the emulator reports the vehicle in the air and agrees with the autopilot's position."""
+    code, m = _replay_cli(demo_runs["px4-attitude-lockstep"] / "flight.tlog", tmp_path / "r", "--estimate-only",
+                          "--no-figures")
+    assert code == 0 and m["estimation"]["airborne_only"]
+    assert m["estimation"]["height_vs_autopilot_m"]["rms"] < 0.01
+    assert m["estimation"]["position_vs_autopilot_m"]["rms"] < 0.01
+    assert m["estimation"]["alpha_x_vs_sensor"]["rms"] < 0.01
+
+
 # --------------------------------------------------------------------------------- generated offboard flights ---
 
 @pytest.mark.parametrize("output", ["attitude", "actuator"])
@@ -265,6 +276,15 @@ def test_progress_bar_draws_on_stderr(capsys: pytest.CaptureFixture[str]) -> Non
         bar(f)
     err = capsys.readouterr().err
     assert err.count("%") == 3 and " 50%" in err and "100%" in err and err.endswith("\n")
+
+
+def test_estimator_runs_only_while_the_vehicle_reports_itself_in_the_air(tmp_path: Path) -> None:
+    path = tmp_path / "ground.tlog"
+    path.write_bytes(flight_log(LogSpec(seconds=2.5, landed_until_s=1.0)))  # vehicle time 12 .. 14.5 s
+    code, m = _replay_cli(path, tmp_path / "r", "--no-figures")
+    assert code == 0 and m["estimation"]["airborne_only"] and m["estimation"]["filter_starts"] == 1
+    t = _csv_columns(tmp_path / "r" / "timeseries.csv")["t"]
+    assert 13.0 <= t.min() <= 13.25 and t.max() > 14.4
 
 
 def test_a_reboot_in_the_log_restarts_the_estimator(tmp_path: Path) -> None:

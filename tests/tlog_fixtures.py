@@ -48,6 +48,7 @@ class LogSpec:
     autopilot: int = 12
     custom_mode: int = PX4_OFFBOARD
     boot_s: float = 12.0
+    landed_until_s: float | None = None  # EXTENDED_SYS_STATE at 5 Hz: ON_GROUND before, IN_AIR after (None: none)
 
 
 class _Ctx:
@@ -81,6 +82,8 @@ def flight_log(spec: LogSpec = LogSpec()) -> bytes:
         vt = boot_us + t_us
         if spec.heartbeat and _due(t_us, 1.0, dt_us):
             msgs.append(mav.heartbeat_encode(spec.mav_type, spec.autopilot, 1 | 128, spec.custom_mode, 4))
+        if spec.landed_until_s is not None and _due(t_us, 5.0, dt_us):
+            msgs.append(mav.extended_sys_state_encode(0, 1 if t < spec.landed_until_s else 2))
         snap = None
         for hz, builder, on in ((spec.attitude_hz, msg_attitude, True),
                                 (spec.position_hz, msg_local_position_ned, spec.local_position),
