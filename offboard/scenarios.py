@@ -18,9 +18,9 @@ from collections.abc import Callable
 from estimators.cable import cable_from_spherical
 from estimators.errors import UserError
 from offboard import reference as ref
-from offboard.disturbances import DisturbanceSpec, RandomDisturbance
 from offboard.sim import Scenario
 from sim_bridge import dynamics
+from sim_bridge.disturbances import DisturbanceSpec, RandomDisturbance
 
 PAPER_DURATION_S = 50.0
 PAPER_DISTURBANCE_START_S = 25.0
