@@ -225,7 +225,7 @@ class MavConnection:
         self.acks.pop(command, None)
         self.send(self.mav.command_long_encode(v.system, v.component, command, 0, *p[:7]))
 
-    def command(self, command: int, *params: float, timeout: float = 0.5, retries: int = 3,
+    def command(self, command: int, *params: float, timeout: float = 0.5, retries: int = 5,
                 idle: Any = None) -> int | None:
         """COMMAND_LONG with acknowledgement: the MAV_RESULT, or None after ``retries`` timeouts.
 

@@ -184,10 +184,13 @@ class Manager:
         raise UserError("ArduPilot refused GUID_OPTIONS bit 3 (thrust as throttle); set it by hand")
 
     # ------------------------------------------------------------------------------------------ modes ---
-    def set_mode(self, role: str, idle: Idle | None = None, retries: int = 3) -> bool:
+    def set_mode(self, role: str, idle: Idle | None = None, retries: int = 5) -> bool:
         """DO_SET_MODE to the flavour's mode for ``role`` (offboard, hold, land); True when accepted."""
         main, sub = MODES[self.flavour][role]
         res = self.conn.command(MAV_CMD_DO_SET_MODE, 1.0, float(main), float(sub), idle=idle, retries=retries)
+        if res is None:  # no acknowledgement (lossy link): believe the heartbeat
+            self.wait_for(lambda: self.in_mode(role), 1.5, idle)
+            res = MAV_RESULT_ACCEPTED if self.in_mode(role) else None
         self.note("set_mode", f"{role} ({main}, {sub}): result {res}")
         return res == MAV_RESULT_ACCEPTED
 
@@ -248,9 +251,11 @@ class Manager:
             res = self.conn.command(MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, alt, idle=idle)
         else:
             res = self.conn.command(MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, height, idle=idle)
-        if res != MAV_RESULT_ACCEPTED:
+        if res is None:  # no acknowledgement (lossy link): the climb itself will tell
+            self.warnings.append("take-off command not acknowledged; waiting for the climb")
+        elif res != MAV_RESULT_ACCEPTED:
             raise UserError(f"take-off refused (result {res}): " + "; ".join(self.conn.statustexts[-3:]))
-        self.note("takeoff", f"to {height:.2f} m above home")
+        self.note("takeoff", f"to {height:.2f} m above home (result {res})")
 
         def reached() -> bool:
             h = height_now()
