@@ -35,7 +35,8 @@ def write_outputs(result: ReplayResult, out_dir: Path, figures: bool = True) -> 
 
 def draw_figures(result: ReplayResult, out_dir: Path) -> list[Path]:
     """swing.png (estimated swing vs the cable-angle sensor), flat_outputs.png (estimated F_x, F_y, z, psi and
-    their references), setpoints.png (logged vs recomputed setpoints, when the log has them)."""
+    their references), setpoints.png (logged vs recomputed setpoints and their difference, when the log has
+    them)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -82,15 +83,23 @@ def draw_figures(result: ReplayResult, out_dir: Path) -> list[Path]:
     names = SP_ATT if result.output == "attitude" else SP_ACT
     if np.any(np.isfinite(col("log_thrust"))):
         show = ("q_x", "q_y", "q_z", "thrust") if result.output == "attitude" else names
-        fig, axes = plt.subplots(len(show), 1, figsize=(9, 2.0 * len(show)), sharex=True)
+        recomputed = np.any(np.isfinite(col("sp_" + show[-1])))
+        n_ax = len(show) + (1 if recomputed else 0)
+        fig, axes = plt.subplots(n_ax, 1, figsize=(9, 2.0 * n_ax), sharex=True)
         for ax, name in zip(axes, show):
             ax.plot(t, col("log_" + name), lw=1.2, label="logged")
-            rc = col("sp_" + name)
-            if np.any(np.isfinite(rc)):
-                ax.plot(t, rc, "--", lw=1.0, label="recomputed")
+            if recomputed:
+                ax.plot(t, col("sp_" + name), "--", lw=1.0, label="recomputed")
             ax.set_ylabel(name)
             ax.grid(alpha=0.3)
             ax.legend(loc="upper right", fontsize=8)
+        if recomputed:  # the difference, where the two curves above are indistinguishable
+            ax = axes[-1]
+            for name in show:
+                ax.plot(t, col("sp_" + name) - col("log_" + name), lw=0.8, label=name)
+            ax.set_ylabel("recomputed - logged")
+            ax.grid(alpha=0.3)
+            ax.legend(loc="upper right", fontsize=8, ncol=len(show))
         axes[-1].set_xlabel("vehicle time (s)")
         axes[0].set_title(f"setpoints ({result.output}): logged vs recomputed")
         save(fig, "setpoints.png")
