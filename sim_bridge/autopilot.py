@@ -95,6 +95,8 @@ class Autopilot:
     dt: plant step, s.
     signing_key: 32-byte MAVLink 2 secret key, or None for no signing.
     est_ready_s: simulation time after boot at which the estimator reports a position (arming refused before).
+    sensors, sensor_rng: the telemetry's sensor preset (``sim_bridge.sensors.PRESETS``) and its seeded generator
+    (``sim_bridge.telemetry``); the inner loops and hold modes use the plant truth.
     """
 
     def __init__(
@@ -112,6 +114,8 @@ class Autopilot:
         rng: Any = None,
         est_ready_s: float = 1.5,
         attitude_model: str = "rigid",
+        sensors: str = "ideal",
+        sensor_rng: Any = None,
     ) -> None:
         self.fl: Flavor = make_flavor(flavor, vehicle)
         self.vehicle = vehicle
@@ -136,7 +140,9 @@ class Autopilot:
                 m.signing.link_id = i
                 m.signing.allow_unsigned_callback = _allow_unsigned
         self.pp = plant_params(vehicle, attitude_model)
-        self.tel = TelemetrySource(self.pp, self.home, noise, rng)
+        self.tel = TelemetrySource(self.pp, self.home, noise, rng, sensors=sensors, sensor_rng=sensor_rng,
+                                   step_us=round(dt * 1e6))
+        self._tel_history = self.tel.needs_history
         self.boot_unix_us = int(time.time() * 1e6)
         self.est_ready_us = int(est_ready_s * 1e6)
 
@@ -194,6 +200,8 @@ class Autopilot:
             "arm_refusals": 0, "mode_changes": 0, "mode_refusals": 0, "touchdowns": 0, "handler_errors": 0,
         }
         self.mode_log: list[tuple[float, str]] = [(0.0, self.mode.name)]
+        #: simulation time (µs) of the first entry into OFFBOARD (PX4) or GUIDED / GUIDED_NOGPS (ArduPilot)
+        self.offboard_entry_us: int | None = None
         self._last_err_report_us = 0
         self._last_err_total = 0
 
@@ -335,6 +343,8 @@ class Autopilot:
             self.takeoff_alt = self._p("MIS_TAKEOFF_ALT") if self.fl.is_px4 else 2.5
         if mode.kind == "guided":
             self.guided_sub = "hold"
+        if mode.kind in ("offboard", "guided") and self.offboard_entry_us is None:
+            self.offboard_entry_us = self.t_us
         self.pos.reset()
         if reason:
             self.statustext(WARNING, reason)
@@ -993,6 +1003,8 @@ class Autopilot:
             self.has_flown = True
         if self.armed and on_ground and (self.k & 63) == 0:
             self._auto_disarm(t_us)
+        if self._tel_history:
+            self.tel.record(t_us, x, u)
         if t_us >= self.next_due:
             self._emit_due(t_us, x, u)
 
@@ -1092,6 +1104,9 @@ class Autopilot:
             "counters": dict(self.counters),
             "signing": self.signing,
             "modes": [[round(t, 3), m] for t, m in self.mode_log],
+            "sensors": self.tel.sensors,
+            "accel_bias_flu": list(self.tel.accel_bias),
+            "offboard_entry_s": None if self.offboard_entry_us is None else self.offboard_entry_us / 1e6,
         }
 
 

@@ -19,6 +19,13 @@ changes and clients that do not stream still work) until the next setpoint arriv
 setpoint dropped or delayed by the injected faults still advances the clock (the handshake is the simulation's
 clock, not part of the emulated link).
 
+Disturbances (``disturbance``, e.g. ``sim_bridge.disturbances.RandomDisturbance``): the environment's external
+inputs. Before every plant step at simulation time ``t`` the plant input slots 4-12 (force on the vehicle, force on
+the load, external torque; ``sim_bridge.dynamics``) are set to ``disturbance(t - origin)``, held over the step.
+``origin`` is 0 (``"boot"``), the first OFFBOARD / GUIDED / GUIDED_NOGPS entry (``"offboard"``; no disturbance
+before it), or a time set by :meth:`Emulator.set_disturbance_origin` (a harness that knows when its scenario
+started, e.g. ``slung demo``). Slots 4-12 are 0 without a disturbance.
+
 Ground: the vehicle rests on the ground plane z = 0 (model NWU) on landing gear tall enough for the load to hang
 free; while on the ground and the collective thrust does not exceed the total weight the state is held at rest.
 A descent through z = 0 is a touchdown: the vehicle is put at rest there, level, with the cable hanging.
@@ -30,6 +37,7 @@ import logging
 import math
 import select
 import time
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from estimators.vehicle import Vehicle
@@ -75,7 +83,11 @@ class Emulator:
         grace: float = 0.05,
         plant_dt: float = 0.001,
         attitude_model: str = "rigid",
+        disturbance: Callable[[float], Sequence[float]] | None = None,
+        disturbance_origin: str = "offboard",
     ) -> None:
+        if disturbance_origin not in ("boot", "offboard"):
+            raise ValueError(f"disturbance_origin must be 'boot' or 'offboard', got {disturbance_origin!r}")
         if clock not in ("realtime", "lockstep"):
             raise ValueError(f"clock must be 'realtime' or 'lockstep', got {clock!r}")
         self.ap = autopilot
@@ -98,6 +110,36 @@ class Emulator:
         self.wall_start = 0.0
         self.wall_end = 0.0
         autopilot.lockstep_marker = clock == "lockstep"
+        self.disturbance = disturbance
+        self.disturbance_origin = disturbance_origin
+        #: simulation time (µs) the disturbance's clock starts from (None: not known yet)
+        self.dist_origin_us: int | None = 0 if disturbance_origin == "boot" else None
+        #: largest |disturbance| seen per channel: force on the vehicle x, y, z (N world), yaw torque (N m)
+        self.dist_max_abs = [0.0, 0.0, 0.0, 0.0]
+        #: when set to a list, every plant step appends (t_us at the step's start, u[4:13]) (tests, analysis)
+        self.input_log: list[tuple[int, tuple[float, ...]]] | None = None
+
+    def set_disturbance_origin(self, t_s: float) -> None:
+        """Start the disturbance's clock at simulation time ``t_s`` (s): the plant then sees ``d(t - t_s)``."""
+        if not math.isfinite(t_s) or t_s < 0.0:
+            raise ValueError(f"disturbance origin must be a finite time >= 0 s, got {t_s!r}")
+        self.dist_origin_us = round(t_s * 1e6)
+
+    def _apply_disturbance(self, u: list[float]) -> None:
+        """Plant input slots 4-12 from the disturbance at the current step's start (module docstring)."""
+        o = self.dist_origin_us
+        if o is None:
+            o = self.ap.offboard_entry_us
+            if o is None:
+                return
+            self.dist_origin_us = o
+        d = self.disturbance(max(self.t_us - o, 0) * 1e-6)  # type: ignore[misc]
+        u[4], u[5], u[6], u[7], u[8], u[9], u[10], u[11], u[12] = d
+        m = self.dist_max_abs
+        for i, j in ((0, 4), (1, 5), (2, 6), (3, 12)):
+            a = abs(u[j])
+            if a > m[i]:
+                m[i] = a
 
     def stop(self) -> None:
         """Ask the loop to end (thread-safe enough: a flag read once per iteration)."""
@@ -111,9 +153,15 @@ class Emulator:
         faulty = link._faulty
         x, u, p, h = self.x, self.u, self.p, self.h
         weight = self.weight
+        dist = self.disturbance
+        log = self.input_log
         for _ in range(n):
             thrust, tx, ty, tz = ap.control(x, self.on_ground)
             u[0], u[1], u[2], u[3] = thrust, tx, ty, tz
+            if dist is not None:
+                self._apply_disturbance(u)
+            if log is not None:
+                log.append((self.t_us, tuple(u[4:13])))
             if self.on_ground:
                 if thrust > weight * 1.0001:
                     self.on_ground = False
@@ -262,6 +310,12 @@ class Emulator:
             "nonfinite_resets": self.nonfinite_resets,
             "on_ground": self.on_ground,
             "altitude_m": self.x[2],
+            "disturbance": None if self.disturbance is None else {
+                "origin": self.disturbance_origin,
+                "origin_s": None if self.dist_origin_us is None else self.dist_origin_us / 1e6,
+                "max_abs_force_xyz_n": self.dist_max_abs[:3],
+                "max_abs_torque_yaw_nm": self.dist_max_abs[3],
+            },
         }
 
 

@@ -6,6 +6,7 @@ Examples::
     slung emulate --flavor ardupilot --lockstep --lockstep-period 0.01
     slung emulate --mavlink udpout:127.0.0.1:14540 --mavlink udpin:127.0.0.1:14550   # controller + GCS
     slung emulate --tlog flight.tlog --duration 60 --summary summary.json
+    slung emulate --lockstep --sensors px4-typical --disturbance paper --seed 3   # sensor models + disturbances
 
 At the end (``--duration`` reached, SIGINT or SIGTERM) a one-line JSON summary with the link counters is
 printed on stdout (and written to ``--summary`` if given).
@@ -23,6 +24,7 @@ from typing import Any
 
 from estimators.errors import UserError
 from estimators.vehicle import load_vehicle
+from sim_bridge.sensors import PRESETS
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +63,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise", type=float, default=0.0,
                         help="telemetry noise scale (0 = the plant truth, 1 = typical EKF/IMU noise)")
     parser.add_argument("--noise-seed", type=int, default=1, help="seed of the telemetry noise")
+    parser.add_argument("--sensors", choices=PRESETS, default="ideal",
+                        help="sensor models of the telemetry (sim_bridge.sensors: noise, accelerometer bias, "
+                             "latency; the stream rates stay the MAVLink intervals); default ideal = the plant truth")
+    parser.add_argument("--disturbance", choices=("none", "paper"), default="none",
+                        help="external disturbances on the plant: paper = slung sim's bounded random forces on the "
+                             "vehicle (x, y, z <= 0.5 N) and yaw torque (<= 0.02 N m); default none")
+    parser.add_argument("--disturbance-start", type=float, default=25.0, metavar="S",
+                        help="onset of the disturbances, s on the disturbance clock (default 25, the paper's)")
+    parser.add_argument("--disturbance-origin", choices=("offboard", "boot"), default="offboard",
+                        help="t = 0 of the disturbance clock: the first OFFBOARD / GUIDED / GUIDED_NOGPS entry "
+                             "(default) or boot (then --disturbance-start is absolute simulation time)")
+    parser.add_argument("--seed", type=int, default=0, metavar="N",
+                        help="seed of the sensor models and the disturbances (as slung sim --seed; default 0)")
     parser.add_argument("--est-ready", type=float, default=1.5, metavar="S",
                         help="simulation time after boot until the estimator has a position (default 1.5 s)")
 
@@ -101,6 +116,12 @@ def build(args: argparse.Namespace) -> Any:
         raise UserError("--sysid and --load-sysid must be different numbers in 1..255")
     if not (args.noise >= 0.0 and args.noise <= 100.0):
         raise UserError(f"--noise must be in [0, 100], got {args.noise!r}")
+    if args.noise > 0.0 and args.sensors != "ideal":
+        raise UserError("--noise (the legacy ad-hoc noise) and --sensors other than ideal exclude each other")
+    if not (0.0 <= args.disturbance_start <= 1e6):
+        raise UserError(f"--disturbance-start must be in [0, 1e6] s, got {args.disturbance_start!r}")
+    if not (0 <= args.seed < 2**63):
+        raise UserError(f"--seed must be an integer >= 0, got {args.seed!r}")
     if not (0.0 <= args.est_ready <= 60.0):
         raise UserError(f"--est-ready must be in [0, 60] s, got {args.est_ready!r}")
     vehicle = load_vehicle(args.vehicle)
@@ -109,9 +130,16 @@ def build(args: argparse.Namespace) -> Any:
     link = Link(args.mavlink or [], faults, args.tlog)
     ap = Autopilot(args.flavor, vehicle, link, sysid=args.sysid, load_sysid=args.load_sysid, signing_key=key,
                    noise=args.noise, rng=np.random.default_rng(args.noise_seed), est_ready_s=args.est_ready,
-                   attitude_model=args.attitude_model)
+                   attitude_model=args.attitude_model, sensors=args.sensors,
+                   sensor_rng=np.random.default_rng(args.seed))
+    disturbance = None
+    if args.disturbance == "paper":
+        from sim_bridge.disturbances import DisturbanceSpec, RandomDisturbance
+
+        disturbance = RandomDisturbance(DisturbanceSpec(start=args.disturbance_start), args.seed)
     emu = Emulator(ap, link, vehicle, clock=args.clock, period=args.lockstep_period, grace=args.lockstep_grace,
-                   attitude_model=args.attitude_model)
+                   attitude_model=args.attitude_model, disturbance=disturbance,
+                   disturbance_origin=args.disturbance_origin)
     return emu, ap, link
 
 

@@ -1,8 +1,17 @@
 """Telemetry generation: the one place where the plant state becomes MAVLink telemetry messages.
 
-The emulated autopilot's estimate is the plant truth (optionally with seeded white noise, ``noise`` > 0 scales
-typical EKF / IMU noise levels). Every model-frame quantity is converted to MAVLink's NED / FRD with
-``estimators.frames`` only.
+What the emulated autopilot reports is one of
+
+- the plant truth (sensor preset ``ideal``, the default), optionally with the legacy ad-hoc white noise
+  (``noise`` > 0 scales typical EKF / IMU noise levels);
+- the issue-3 sensor models (``sim_bridge.sensors``, presets ``px4-typical`` and ``px4-fast``): each sensor
+  group (position + velocity; attitude + body rates; accelerometer + gyro; cable angle) is sampled from the plant
+  state ``latency + U(0, jitter)`` seconds before the message is sent (a plant-step history is kept for that),
+  stamped with that sample time, and carries the preset's white noise; the accelerometer also carries the
+  preset's constant per-axis bias. The message RATES are the MAVLink stream intervals (flavour defaults or
+  SET_MESSAGE_INTERVAL), not the preset's rates. All randomness comes from one seeded generator.
+
+Every model-frame quantity is converted to MAVLink's NED / FRD with ``estimators.frames`` only.
 
 Wire conventions (see ``docs/emulator.md``):
 
@@ -19,6 +28,7 @@ Wire conventions (see ``docs/emulator.md``):
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -30,9 +40,11 @@ from estimators.frames import (
     model_euler_to_ned,
     model_quaternion_to_ned,
     model_to_ned_vector,
+    wrap_angle,
 )
 from sim_bridge.airframe import body_rates
 from sim_bridge.dynamics import PlantParams, derivative
+from sim_bridge.sensors import preset_spec, specific_force_body
 
 EARTH_RADIUS = 6378137.0  # m (WGS-84 equatorial), flat-earth offsets only
 
@@ -74,6 +86,11 @@ class Snapshot:
     swing_n: float
     swing_e: float
     swing: float
+    gyro: tuple[float, float, float]  # IMU gyro, rad/s FRD (the attitude group's rates are p, qr, r)
+    t_pos_us: int  # sample times (µs) of the position, attitude, IMU and cable-angle groups
+    t_att_us: int
+    t_imu_us: int
+    t_load_us: int
 
 
 def _rot_t_times(phi: float, theta: float, psi: float, v: Sequence[float]) -> tuple[float, float, float]:
@@ -89,15 +106,47 @@ def _rot_t_times(phi: float, theta: float, psi: float, v: Sequence[float]) -> tu
 
 
 class TelemetrySource:
-    """Builds :class:`Snapshot` objects from the plant state (truth + optional seeded noise)."""
+    """Builds :class:`Snapshot` objects from the plant state (see the module docstring).
+
+    params: the plant's parameters; home: the local origin; noise, rng: the legacy ad-hoc noise scale and its
+    generator (only with ``sensors="ideal"``); sensors: a preset of ``sim_bridge.sensors.PRESETS``;
+    sensor_rng: the only source of randomness of the sensor models (bias, noise, latency jitter); step_us: the
+    plant step (µs), the grid of the sample times.
+    """
 
     def __init__(self, params: PlantParams, home: Home, noise: float = 0.0,
-                 rng: np.random.Generator | None = None) -> None:
+                 rng: np.random.Generator | None = None, *, sensors: str = "ideal",
+                 sensor_rng: np.random.Generator | None = None, step_us: int = 1000) -> None:
         self.p = params
         self.home = home
         self.noise = noise
         self.rng = rng if rng is not None else np.random.default_rng(0)
         self._cos_lat = math.cos(math.radians(home.lat))
+        self.sensors = sensors
+        pr = preset_spec(sensors)
+        self.preset = pr
+        groups = (pr.position, pr.attitude, pr.imu, pr.load)
+        #: True when the preset adds noise, bias or latency (otherwise the snapshot is the truth)
+        self.modelled = pr.accel_bias > 0.0 or any(g.latency_s > 0.0 or g.jitter_s > 0.0 or any(g.noise)
+                                                    for g in groups)
+        if self.modelled and noise > 0.0:
+            raise ValueError("the legacy noise scale and a sensor preset other than 'ideal' exclude each other")
+        self.srng = sensor_rng if sensor_rng is not None else np.random.default_rng(0)
+        b = self.srng.normal(0.0, pr.accel_bias, 3) if pr.accel_bias > 0.0 else np.zeros(3)
+        #: the accelerometer's constant bias, m/s^2 body FLU (drawn as ``sim_bridge.sensors.SensorSuite`` does)
+        self.accel_bias: tuple[float, float, float] = (float(b[0]), float(b[1]), float(b[2]))
+        self._delay = tuple((g.latency_s, g.jitter_s) for g in groups)
+        max_delay = max(lat + jit for lat, jit in self._delay)
+        #: True when :meth:`record` must be called after every plant step (a preset with latency)
+        self.needs_history = self.modelled and max_delay > 0.0
+        self.step_us = step_us
+        self._hist: deque[tuple[int, tuple[float, ...], tuple[float, ...]]] = deque(
+            maxlen=int(max_delay * 1e6 / step_us) + 3)
+        self._last_target = [0, 0, 0, 0]
+
+    def record(self, t_us: int, x: Sequence[float], u: Sequence[float]) -> None:
+        """Remember the plant state and input at ``t_us`` (called after every plant step when latency is modelled)."""
+        self._hist.append((t_us, tuple(x), tuple(u)))
 
     def _latlon(self, n: float, e: float, d: float) -> tuple[int, int, int, int]:
         lat = self.home.lat + math.degrees(n / EARTH_RADIUS)
@@ -107,6 +156,8 @@ class TelemetrySource:
 
     def snapshot(self, t_us: int, x: Sequence[float], u: Sequence[float]) -> Snapshot:
         """Telemetry values at simulation time ``t_us`` (µs) for state ``x`` and input ``u`` (model frame)."""
+        if self.modelled:
+            return self._sensed(t_us, x, u)
         phi, theta, psi = x[6], x[7], x[8]
         wx, wy, wz = body_rates(phi, theta, x[9], x[10], x[11])
         dx = derivative(0.0, x, u, self.p)
@@ -114,9 +165,6 @@ class TelemetrySource:
         f_body = _rot_t_times(phi, theta, psi, (dx[3], dx[4], dx[5] + g))
         pos = model_to_ned_vector(x[0], x[1], x[2])
         vel = model_to_ned_vector(x[3], x[4], x[5])
-        l = self.p.l
-        load_pos = model_to_ned_vector(x[0] + l * x[12], x[1] + l * x[13], x[2] + l * x[14])
-        load_vel = model_to_ned_vector(x[3] + l * x[15], x[4] + l * x[16], x[5] + l * x[17])
         rn, re, rd = model_to_ned_vector(x[12], x[13], x[14])
         if self.noise > 0.0:
             k = self.noise
@@ -131,17 +179,79 @@ class TelemetrySource:
             swing_noise = (k * 0.009 * nz[15], k * 0.009 * nz[16])
         else:
             swing_noise = (0.0, 0.0)
+        rates = model_body_to_frd(wx, wy, wz)
+        return self._build(t_us, x, (phi, theta, psi), rates, pos, vel, model_body_to_frd(*f_body), rates,
+                           math.atan2(rn, rd) + swing_noise[0], math.atan2(re, rd) + swing_noise[1],
+                           math.atan2(math.hypot(rn, re), rd), (t_us, t_us, t_us, t_us))
+
+    def _sample(self, group: int, t_us: int, jitter_u: float, x: Sequence[float],
+                u: Sequence[float]) -> tuple[int, Sequence[float], Sequence[float]]:
+        """(sample time µs, state, input) of a sensor group: the newest recorded plant step at or before
+        ``t_us - latency - jitter`` (never earlier than the group's previous sample)."""
+        lat, jit = self._delay[group]
+        target = t_us - round((lat + jit * jitter_u) * 1e6)
+        target = max(target, self._last_target[group])
+        self._last_target[group] = target
+        if target >= t_us or not self._hist:
+            return t_us, x, u
+        hist = self._hist
+        for entry in reversed(hist):
+            if entry[0] <= target:
+                return entry
+        return hist[0]
+
+    def _sensed(self, t_us: int, x: Sequence[float], u: Sequence[float]) -> Snapshot:
+        """The snapshot with the preset's latency, noise and bias (module docstring)."""
+        pr = self.preset
+        z = self.srng.standard_normal(20).tolist()
+        jit = self.srng.random(4).tolist()
+        # position + velocity
+        tp, xp, _ = self._sample(0, t_us, jit[0], x, u)
+        sxy, sz, svxy, svz = pr.position.noise
+        pos = model_to_ned_vector(xp[0] + sxy * z[0], xp[1] + sxy * z[1], xp[2] + sz * z[2])
+        vel = model_to_ned_vector(xp[3] + svxy * z[3], xp[4] + svxy * z[4], xp[5] + svz * z[5])
+        # attitude + body rates
+        ta, xa, _ = self._sample(1, t_us, jit[1], x, u)
+        sa, sy, sr = pr.attitude.noise
+        euler = (xa[6] + sa * z[6], xa[7] + sa * z[7], wrap_angle(xa[8] + sy * z[8]))
+        w = body_rates(xa[6], xa[7], xa[9], xa[10], xa[11])
+        rates = model_body_to_frd(w[0] + sr * z[9], w[1] + sr * z[10], w[2] + sr * z[11])
+        # accelerometer (bias + noise) + gyro
+        ti, xi, ui = self._sample(2, t_us, jit[2], x, u)
+        sacc, sg = pr.imu.noise
+        acc_w = derivative(0.0, xi, ui, self.p)
+        f = specific_force_body(xi, acc_w[3:6], self.p.g)
+        b = self.accel_bias
+        acc = model_body_to_frd(f[0] + b[0] + sacc * z[12], f[1] + b[1] + sacc * z[13], f[2] + b[2] + sacc * z[14])
+        wi = body_rates(xi[6], xi[7], xi[9], xi[10], xi[11])
+        gyro = model_body_to_frd(wi[0] + sg * z[15], wi[1] + sg * z[16], wi[2] + sg * z[17])
+        # cable angle
+        tl, xl, _ = self._sample(3, t_us, jit[3], x, u)
+        sl = pr.load.noise[0]
+        rn, re, rd = model_to_ned_vector(xl[12], xl[13], xl[14])
+        sn = math.atan2(rn, rd) + sl * z[18]
+        se = math.atan2(re, rd) + sl * z[19]
+        total = math.atan(math.hypot(math.tan(sn), math.tan(se))) if max(abs(sn), abs(se)) < 1.5 else \
+            math.atan2(math.hypot(rn, re), rd)
+        return self._build(t_us, x, euler, rates, pos, vel, acc, gyro, sn, se, total, (tp, ta, ti, tl))
+
+    def _build(self, t_us: int, x: Sequence[float], euler: tuple[float, float, float],
+               rates: tuple[float, float, float], pos: tuple[float, float, float], vel: tuple[float, float, float],
+               acc: tuple[float, float, float], gyro: tuple[float, float, float], swing_n: float, swing_e: float,
+               swing: float, stamps: tuple[int, int, int, int]) -> Snapshot:
+        """Assemble a snapshot; euler: model ZYX angles (rad); rates, acc, gyro: FRD; pos, vel: NED; the load's
+        own position (its second MAVLink system) is the truth of ``x``."""
+        phi, theta, psi = euler
         roll, pitch, yaw = model_euler_to_ned(phi, theta, psi)
         q = model_quaternion_to_ned(*euler_to_quaternion(phi, theta, psi))
-        p_, q_, r_ = model_body_to_frd(wx, wy, wz)
-        acc = model_body_to_frd(*f_body)
+        l = self.p.l
+        load_pos = model_to_ned_vector(x[0] + l * x[12], x[1] + l * x[13], x[2] + l * x[14])
+        load_vel = model_to_ned_vector(x[3] + l * x[15], x[4] + l * x[16], x[5] + l * x[17])
         lat, lon, alt, rel = self._latlon(*pos)
         llat, llon, lalt, lrel = self._latlon(*load_pos)
         return Snapshot(
-            t_us, roll, pitch, yaw, q, p_, q_, r_, pos, vel, acc, lat, lon, alt, rel,
-            load_pos, load_vel, llat, llon, lalt, lrel,
-            math.atan2(rn, rd) + swing_noise[0], math.atan2(re, rd) + swing_noise[1],
-            math.atan2(math.hypot(rn, re), rd),
+            t_us, roll, pitch, yaw, q, rates[0], rates[1], rates[2], pos, vel, acc, lat, lon, alt, rel,
+            load_pos, load_vel, llat, llon, lalt, lrel, swing_n, swing_e, swing, gyro, *stamps,
         )
 
 
@@ -153,24 +263,24 @@ _NAN21 = [float("nan")] + [0.0] * 20
 
 def msg_attitude(mav, s: Snapshot, ctx):
     """ATTITUDE: Euler angles (rad, NED/FRD) and body rates (rad/s, FRD)."""
-    return mav.attitude_encode(s.t_us // 1000, s.roll, s.pitch, s.yaw, s.p, s.qr, s.r)
+    return mav.attitude_encode(s.t_att_us // 1000, s.roll, s.pitch, s.yaw, s.p, s.qr, s.r)
 
 
 def msg_attitude_quaternion(mav, s: Snapshot, ctx):
     """ATTITUDE_QUATERNION: q (FRD body to NED), body rates FRD."""
     w, x, y, z = s.q
-    return mav.attitude_quaternion_encode(s.t_us // 1000, w, x, y, z, s.p, s.qr, s.r, [0.0, 0.0, 0.0, 0.0])
+    return mav.attitude_quaternion_encode(s.t_att_us // 1000, w, x, y, z, s.p, s.qr, s.r, [0.0, 0.0, 0.0, 0.0])
 
 
 def msg_local_position_ned(mav, s: Snapshot, ctx):
     """LOCAL_POSITION_NED relative to home."""
-    return mav.local_position_ned_encode(s.t_us // 1000, *s.pos, *s.vel)
+    return mav.local_position_ned_encode(s.t_pos_us // 1000, *s.pos, *s.vel)
 
 
 def msg_odometry(mav, s: Snapshot, ctx):
     """ODOMETRY: pose in LOCAL_NED, velocity and rates in BODY_FRD."""
     vb = _ned_to_body(s.q, s.vel)
-    return mav.odometry_encode(s.t_us, 1, 12, s.pos[0], s.pos[1], s.pos[2], list(s.q), vb[0], vb[1], vb[2],
+    return mav.odometry_encode(s.t_pos_us, 1, 12, s.pos[0], s.pos[1], s.pos[2], list(s.q), vb[0], vb[1], vb[2],
                                s.p, s.qr, s.r, _NAN21, _NAN21, 0, 0, 100)
 
 
@@ -195,7 +305,8 @@ def msg_highres_imu(mav, s: Snapshot, ctx):
     """HIGHRES_IMU: specific force (m/s^2, FRD), gyro (rad/s, FRD), pressure altitude."""
     alt = ctx.home.alt - s.pos[2]
     pressure = 1013.25 * (1.0 - 2.25577e-5 * alt) ** 5.25588
-    return mav.highres_imu_encode(s.t_us, s.acc[0], s.acc[1], s.acc[2], s.p, s.qr, s.r, 0.21, 0.0, 0.42,
+    gx, gy, gz = s.gyro
+    return mav.highres_imu_encode(s.t_imu_us, s.acc[0], s.acc[1], s.acc[2], gx, gy, gz, 0.21, 0.0, 0.42,
                                   pressure, 0.0, alt, 25.0, 0x1FFF, 0)
 
 
@@ -209,20 +320,22 @@ def _mrad(v: float) -> int:
 
 def msg_scaled_imu(mav, s: Snapshot, ctx):
     """SCALED_IMU: accel in mG, gyro in mrad/s (FRD)."""
-    return mav.scaled_imu_encode(s.t_us // 1000, _mg(s.acc[0]), _mg(s.acc[1]), _mg(s.acc[2]),
-                                 _mrad(s.p), _mrad(s.qr), _mrad(s.r), 210, 0, 420)
+    gx, gy, gz = s.gyro
+    return mav.scaled_imu_encode(s.t_imu_us // 1000, _mg(s.acc[0]), _mg(s.acc[1]), _mg(s.acc[2]),
+                                 _mrad(gx), _mrad(gy), _mrad(gz), 210, 0, 420)
 
 
 def msg_raw_imu(mav, s: Snapshot, ctx):
     """RAW_IMU: as ArduPilot sends it, the same scaling as SCALED_IMU (mG, mrad/s)."""
-    return mav.raw_imu_encode(s.t_us, _mg(s.acc[0]), _mg(s.acc[1]), _mg(s.acc[2]),
-                              _mrad(s.p), _mrad(s.qr), _mrad(s.r), 210, 0, 420)
+    gx, gy, gz = s.gyro
+    return mav.raw_imu_encode(s.t_imu_us, _mg(s.acc[0]), _mg(s.acc[1]), _mg(s.acc[2]),
+                              _mrad(gx), _mrad(gy), _mrad(gz), 210, 0, 420)
 
 
 def msg_global_position_int(mav, s: Snapshot, ctx):
     """GLOBAL_POSITION_INT of the vehicle (degE7, mm, cm/s NED, cdeg)."""
     hdg = round(math.degrees(s.yaw) * 100.0) % 36000
-    return mav.global_position_int_encode(s.t_us // 1000, s.lat, s.lon, s.alt_mm, s.rel_alt_mm,
+    return mav.global_position_int_encode(s.t_pos_us // 1000, s.lat, s.lon, s.alt_mm, s.rel_alt_mm,
                                           _cms(s.vel[0]), _cms(s.vel[1]), _cms(s.vel[2]), hdg)
 
 
@@ -243,7 +356,7 @@ def msg_load_attitude(mav, s: Snapshot, ctx):
 
 def msg_debug_vect(mav, s: Snapshot, ctx):
     """Load-angle sensor: DEBUG_VECT "LOADANG" (x north-down angle, y east-down angle, z total, rad)."""
-    return mav.debug_vect_encode(b"LOADANG", s.t_us, s.swing_n, s.swing_e, s.swing)
+    return mav.debug_vect_encode(b"LOADANG", s.t_load_us, s.swing_n, s.swing_e, s.swing)
 
 
 def msg_attitude_target(mav, s: Snapshot, ctx):
