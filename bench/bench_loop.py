@@ -7,7 +7,7 @@ setpoint latency p50 / p99, and missed deadlines (a setpoint more than 1.5 perio
 compute time above one period). The machine's load average is printed beside them: the emulator's 1 kHz plant and
 the loop share the cores with whatever else runs.
 
-    python bench/bench_loop.py [--rates 250 500] [--duration 60] [--out DIR]
+    python bench/bench_loop.py [--rates 250 500] [--duration 60] [--rt-priority N] [--out DIR]
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def free_port() -> int:
     return port
 
 
-def one(rate: float, duration: float, out: Path) -> dict:
+def one(rate: float, duration: float, out: Path, rt_priority: int = 0) -> dict:
     from offboard.demo_cli import configure
     from offboard.fly_cli import fly
 
@@ -44,10 +44,11 @@ def one(rate: float, duration: float, out: Path) -> dict:
     emu = subprocess.Popen([sys.executable, "-m", "sim_bridge.emulator_cli", "--realtime", "--mavlink",
                             f"udpout:127.0.0.1:{port}", "--summary", str(summary)], cwd=ROOT,
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    time.sleep(1.5)  # let the emulator import and bind before the loop (maybe at real-time priority) starts
     p = argparse.ArgumentParser()
     configure(p)
     args = p.parse_args(["--scenario", "hover", "--duration", str(duration), "--rate", str(rate), "--no-figures",
-                         "--out", str(out / f"loop-{rate:g}")])
+                         "--rt-priority", str(rt_priority), "--out", str(out / f"loop-{rate:g}-p{rt_priority}")])
     args.connect, args.trajectory = f"udpin:127.0.0.1:{port}", None
     load0 = os.getloadavg()
     try:
@@ -56,7 +57,7 @@ def one(rate: float, duration: float, out: Path) -> dict:
         emu.send_signal(signal.SIGTERM)
         emu.wait(timeout=10)
     lp = m["loop"]
-    return {"rate_hz": rate, "ended_by": m["flight"]["ended_by"], "load_before": load0[0],
+    return {"rate_hz": rate, "rt_priority": rt_priority, "ended_by": m["flight"]["ended_by"], "load_before": load0[0],
             "load_after": os.getloadavg()[0], **{k: lp[k] for k in (
                 "rate_hz_achieved", "ticks", "elapsed_s", "compute_us_p50", "compute_us_p99", "estimator_us_p50",
                 "estimator_us_p99", "latency_us_p50", "latency_us_p99", "missed_deadlines", "missed_fraction",
@@ -68,18 +69,20 @@ def main() -> int:
     ap.add_argument("--rates", type=float, nargs="+", default=[250.0, 500.0])
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--out", default=None)
+    ap.add_argument("--rt-priority", type=int, default=0,
+                    help="SCHED_FIFO priority of the loop (0: normal scheduling); the emulator stays normal")
     a = ap.parse_args()
     out = Path(a.out or tempfile.mkdtemp(prefix="bench-loop-"))
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for r in a.rates:
         t0 = time.monotonic()
-        rows.append(one(r, a.duration, out))
+        rows.append(one(r, a.duration, out, a.rt_priority))
         rows[-1]["wall_s"] = time.monotonic() - t0
-    print(f"{'rate':>6} {'achieved':>9} {'compute p50/p99 us':>19} {'estimator p50/p99':>18} "
+    print(f"{'rate':>6} {'prio':>4} {'achieved':>9} {'compute p50/p99 us':>19} {'estimator p50/p99':>18} "
           f"{'latency p50/p99 us':>19} {'missed':>12} {'load':>5} ended")
     for r in rows:
-        print(f"{r['rate_hz']:>6.0f} {r['rate_hz_achieved'] or 0:>9.1f} "
+        print(f"{r['rate_hz']:>6.0f} {r['rt_priority']:>4} {r['rate_hz_achieved'] or 0:>9.1f} "
               f"{r['compute_us_p50'] or 0:>9.0f}/{r['compute_us_p99'] or 0:<9.0f} "
               f"{r['estimator_us_p50'] or 0:>8.0f}/{r['estimator_us_p99'] or 0:<9.0f} "
               f"{r['latency_us_p50'] or 0:>9.0f}/{r['latency_us_p99'] or 0:<9.0f} "

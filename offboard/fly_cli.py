@@ -94,7 +94,25 @@ def add_flight_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None
     p.add_argument("--end", choices=("hold", "land"), default="hold", help="what to do at the end (default hold)")
     p.add_argument("--on-signal", choices=("hold", "land"), default="hold",
                    help="what Ctrl-C / SIGTERM does (default hold)")
+    p.add_argument("--rt-priority", type=int, default=0, metavar="N",
+                   help="run the loop with SCHED_FIFO real-time priority N (1..99; needs the right to; default off)")
     p.add_argument("--no-figures", action="store_true", help="write metrics and time series only")
+
+
+def set_realtime_priority(priority: int) -> str | None:
+    """SCHED_FIFO at ``priority`` for this process (Linux); a warning text when it cannot be done, else None.
+    The loop never busy-waits (it blocks in select), so a real-time priority does not starve the machine."""
+    if priority <= 0:
+        return None
+    if not 1 <= priority <= 99:
+        raise UserError(f"--rt-priority must be in 1..99, got {priority}")
+    try:
+        import os
+
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError) as exc:
+        return f"could not set real-time priority {priority}: {exc}"
+    return None
 
 
 def make_reference(args: argparse.Namespace) -> tuple[Scenario, float]:
@@ -151,6 +169,7 @@ def fly(args: argparse.Namespace, *, lockstep: bool, takeoff: bool = True, truth
     else:
         conn = MavConnection(args.connect, baud=getattr(args, "baud", None), tlog_path=tlog_path)
     wall0 = time.perf_counter()
+    prio_warning = set_realtime_priority(getattr(args, "rt_priority", 0))
     try:
         info = conn.wait_heartbeat(timeout=15.0)
         if info.flavour == "ardupilot" and args.output == "actuator":
@@ -166,6 +185,8 @@ def fly(args: argparse.Namespace, *, lockstep: bool, takeoff: bool = True, truth
                   f"{duration:g} s, {args.output} output at {args.rate:g} Hz"
                   + (" (lockstep)" if lockstep else ""), file=sys.stderr, flush=True)
         result = loop.run()
+        if prio_warning:
+            result.warnings.append(prio_warning)
         if not result.load_sensor:
             result.warnings.append("no load-angle telemetry: the filter estimated the swing from the IMU")
         link = {"received": conn.stats.received, "sent": conn.stats.sent, "bad_data": conn.stats.bad_data,
