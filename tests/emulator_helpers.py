@@ -147,6 +147,53 @@ class Emu:
             self.proc.wait()
 
 
+class InProcessEmu(Emu):
+    """The emulator built by ``sim_bridge.emulator_cli.build`` and run in a thread of this process (so a test can
+    read its plant inputs and state), with the same pymavlink client API as :class:`Emu` over real UDP."""
+
+    def __init__(self, *args: str) -> None:
+        import argparse
+        import threading
+
+        from sim_bridge import emulator_cli
+
+        self.port = free_port()
+        self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=255,
+                                               source_component=190, dialect="ardupilotmega")
+        parser = argparse.ArgumentParser()
+        emulator_cli.configure(parser)
+        self.args = parser.parse_args(["--mavlink", f"udpout:127.0.0.1:{self.port}", *args])
+        self.emu, self.ap, self.link = emulator_cli.build(self.args)
+        self.summary = None
+        self.texts = []
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        try:
+            self.emu.run(None)
+        except BaseException as exc:  # re-raised by stop()
+            self.error = exc
+
+    def stop(self, timeout: float = 10.0) -> dict[str, Any]:
+        """Stop the thread, close the sockets; the emulator's summary (as ``slung emulate`` prints it)."""
+        self.emu.stop()
+        self.thread.join(timeout)
+        self.summary = {**self.ap.summary(), **self.emu.summary(), "link": self.link.summary()}
+        self.link.close()
+        self.conn.close()
+        if self.error is not None:
+            raise RuntimeError(f"the emulator failed: {self.error!r}")
+        return self.summary
+
+    def __exit__(self, *exc: object) -> None:
+        if self.thread.is_alive():
+            self.emu.stop()
+            self.thread.join(10.0)
+            self.link.close()
+
+
 def attitude_target(mav: Any, roll: float, pitch: float, yaw: float, thrust: float, t_ms: int = 0,
                     target: int = 1) -> None:
     """SET_ATTITUDE_TARGET, type_mask 7 (attitude + thrust), Euler angles in rad (NED/FRD)."""
@@ -179,17 +226,22 @@ class HoldController:
 
 
 def fly_lockstep_hold(emu: Emu, seconds: float, vehicle: Vehicle, altitude: float = 2.0,
-                      period: float = 0.01) -> dict[str, Any]:
+                      period: float = 0.01, collect: tuple[str, ...] = ()) -> dict[str, Any]:
     """Arm, enter offboard and hold ``altitude`` for ``seconds`` of simulation time in lockstep.
 
-    Returns wall time of the lockstep part, final position (NED) and the number of handshakes.
+    Returns wall time of the lockstep part, final position (NED) and the number of handshakes; with ``collect``
+    (message names), also ``messages``: name -> [(time of the step marker that followed it ms, message)] for
+    every such message of the autopilot from the offboard entry on, and those streams run at the control rate.
     """
     emu.wait_heartbeat()
     emu.wait_ready()
     mav = emu.mav
     iv = int(period * 1e6)
-    for msgid in (32, 30):  # LOCAL_POSITION_NED, ATTITUDE at the control rate
+    ids = {"HIGHRES_IMU": 105, "DEBUG_VECT": 250, "ATTITUDE_QUATERNION": 31, "ODOMETRY": 331}
+    for msgid in (32, 30, *(ids[n] for n in collect if n in ids)):  # LOCAL_POSITION_NED, ATTITUDE, ...
         emu.command(MAV_CMD_SET_MESSAGE_INTERVAL, msgid, iv)
+    messages: dict[str, list[tuple[int, Any]]] = {n: [] for n in collect}
+    pending: list[Any] = []
     ctrl = HoldController(vehicle, (0.0, 0.0, -altitude))
     pos, vel = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
     sim_ms = 0
@@ -211,12 +263,17 @@ def fly_lockstep_hold(emu: Emu, seconds: float, vehicle: Vehicle, altitude: floa
             if m is None:
                 raise TimeoutError("lockstep: no end-of-step marker")
             t = m.get_type()
+            if t in messages and start_ms is not None and m.get_srcSystem() == 1:
+                pending.append(m)
             if t == "LOCAL_POSITION_NED":
                 pos, vel = (m.x, m.y, m.z), (m.vx, m.vy, m.vz)
                 if start_ms is not None:
                     trace.append((m.time_boot_ms - start_ms, m.x, m.z))
             elif t == "SYSTEM_TIME" and m.get_srcSystem() == 1:
                 sim_ms = m.time_boot_ms
+                for pm in pending:
+                    messages[pm.get_type()].append((sim_ms, pm))
+                pending.clear()
                 break
         if not armed and steps == 20:
             mav.command_long_send(1, 1, MAV_CMD_ARM, 0, 1, 0, 0, 0, 0, 0, 0)
@@ -233,4 +290,4 @@ def fly_lockstep_hold(emu: Emu, seconds: float, vehicle: Vehicle, altitude: floa
                 break
     wall = time.monotonic() - t0
     return {"wall_s": wall, "sim_s": (sim_ms - (start_ms or 0)) / 1000.0, "pos": pos, "handshakes": steps,
-            "max_alt_err_after_10s": max_err, "trace": trace}
+            "max_alt_err_after_10s": max_err, "trace": trace, "messages": messages}
