@@ -22,9 +22,11 @@ clock, not part of the emulated link).
 Disturbances (``disturbance``, e.g. ``sim_bridge.disturbances.RandomDisturbance``): the environment's external
 inputs. Before every plant step at simulation time ``t`` the plant input slots 4-12 (force on the vehicle, force on
 the load, external torque; ``sim_bridge.dynamics``) are set to ``disturbance(t - origin)``, held over the step.
-``origin`` is 0 (``"boot"``), the first OFFBOARD / GUIDED / GUIDED_NOGPS entry (``"offboard"``; no disturbance
-before it), or a time set by :meth:`Emulator.set_disturbance_origin` (a harness that knows when its scenario
-started, e.g. ``slung demo``). Slots 4-12 are 0 without a disturbance.
+``origin`` is 0 (``"boot"``), the first OFFBOARD / GUIDED / GUIDED_NOGPS entry (``"offboard"``), or the time a
+harness running the emulator in its process sets with :meth:`Emulator.set_disturbance_origin` (``"harness"``:
+e.g. ``slung demo``, which knows when its scenario's reference started); no disturbance before the origin is
+known. :meth:`Emulator.set_disturbance_origin` also overrides the other two. Slots 4-12 are 0 without a
+disturbance.
 
 Ground: the vehicle rests on the ground plane z = 0 (model NWU) on landing gear tall enough for the load to hang
 free; while on the ground and the collective thrust does not exceed the total weight the state is held at rest.
@@ -86,8 +88,8 @@ class Emulator:
         disturbance: Callable[[float], Sequence[float]] | None = None,
         disturbance_origin: str = "offboard",
     ) -> None:
-        if disturbance_origin not in ("boot", "offboard"):
-            raise ValueError(f"disturbance_origin must be 'boot' or 'offboard', got {disturbance_origin!r}")
+        if disturbance_origin not in ("boot", "offboard", "harness"):
+            raise ValueError(f"disturbance_origin must be 'boot', 'offboard' or 'harness', got {disturbance_origin!r}")
         if clock not in ("realtime", "lockstep"):
             raise ValueError(f"clock must be 'realtime' or 'lockstep', got {clock!r}")
         self.ap = autopilot
@@ -129,7 +131,7 @@ class Emulator:
         """Plant input slots 4-12 from the disturbance at the current step's start (module docstring)."""
         o = self.dist_origin_us
         if o is None:
-            o = self.ap.offboard_entry_us
+            o = self.ap.offboard_entry_us if self.disturbance_origin == "offboard" else None
             if o is None:
                 return
             self.dist_origin_us = o

@@ -71,9 +71,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
                              "vehicle (x, y, z <= 0.5 N) and yaw torque (<= 0.02 N m); default none")
     parser.add_argument("--disturbance-start", type=float, default=25.0, metavar="S",
                         help="onset of the disturbances, s on the disturbance clock (default 25, the paper's)")
-    parser.add_argument("--disturbance-origin", choices=("offboard", "boot"), default="offboard",
+    parser.add_argument("--disturbance-origin", choices=("offboard", "boot", "harness"), default="offboard",
                         help="t = 0 of the disturbance clock: the first OFFBOARD / GUIDED / GUIDED_NOGPS entry "
-                             "(default) or boot (then --disturbance-start is absolute simulation time)")
+                             "(default), boot (--disturbance-start is then absolute simulation time), or harness: "
+                             "set by the program running the emulator in-process (Emulator.set_disturbance_origin, "
+                             "slung demo); none until then")
     parser.add_argument("--seed", type=int, default=0, metavar="N",
                         help="seed of the sensor models and the disturbances (as slung sim --seed; default 0)")
     parser.add_argument("--est-ready", type=float, default=1.5, metavar="S",

@@ -76,7 +76,7 @@ def _build(*argv: str) -> Any:
     return emulator_cli.build(parser.parse_args(["--mavlink", "udpin:127.0.0.1:0", *argv]))
 
 
-def test_default_is_the_paper_spec_and_boot_or_harness_origins() -> None:
+def test_default_is_the_paper_spec_and_the_boot_and_harness_origins() -> None:
     emu, _, link = _build("--disturbance", "paper", "--seed", "9")
     try:
         assert emu.disturbance.spec == DisturbanceSpec()  # the spec of slung sim's paper scenario
@@ -85,7 +85,7 @@ def test_default_is_the_paper_spec_and_boot_or_harness_origins() -> None:
     finally:
         link.close()
     # boot origin: --disturbance-start is absolute simulation time; a harness may set the origin itself
-    for origin, setter in (("boot", None), ("offboard", 0.3)):
+    for origin, setter in (("boot", None), ("harness", 0.3), ("offboard", 0.3)):
         emu, _, link = _build("--disturbance", "paper", "--disturbance-start", "0.5", "--disturbance-origin", origin,
                               "--seed", "9")
         try:
@@ -102,3 +102,12 @@ def test_default_is_the_paper_spec_and_boot_or_harness_origins() -> None:
             link.close()
     with pytest.raises(ValueError):
         emu.set_disturbance_origin(float("nan"))
+    # harness origin never set (and offboard never entered): no disturbance at all
+    for origin in ("harness", "offboard"):
+        emu, _, link = _build("--disturbance", "paper", "--disturbance-start", "0.0", "--disturbance-origin", origin)
+        try:
+            emu.input_log = []
+            emu.step(1000)
+            assert len(emu.input_log) == 1000 and not any(any(v) for _, v in emu.input_log)
+        finally:
+            link.close()
