@@ -115,3 +115,16 @@ def test_rate_integrator_model_keeps_the_realized_torque_on_command() -> None:
         errors[name] = worst
     assert errors["with"] < 0.01 * v.roll_pitch_torque_max
     assert errors["without"] > 0.1 * v.roll_pitch_torque_max
+
+
+def test_flight_code_does_not_load_the_emulator() -> None:
+    """The loop, the link and the mapping meet the emulator only on the wire: importing them (in a fresh
+    interpreter) loads no sim_bridge module, directly or indirectly."""
+    import subprocess
+    import sys
+
+    code = ("import sys, offboard.loop, offboard.command_mapping, offboard.link.connection, offboard.link.telemetry, "
+            "offboard.link.setpoints, offboard.link.management, offboard.link.mavsdk_backend; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'sim_bridge'))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
