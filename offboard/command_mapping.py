@@ -11,7 +11,7 @@ Thrust (both outputs)
     ``(M + m) g / T_max``): the vehicle's hover thrust then lands exactly on the autopilot's hover throttle.
     ArduPilot (``flavour="ardupilot"``): SET_ATTITUDE_TARGET thrust is a throttle only with GUID_OPTIONS bit 3
     (value 8, checked by ``offboard.link.management``); with ATC_ANGLE_BOOST on, ArduPilot multiplies the
-    throttle by ``1 / max(cos(phi_sp) cos(theta_sp), 0.5)``. The sliding-mode thrust is already the thrust of the
+    throttle by ``1 / max(cos(phi) cos(theta), 0.5)`` of the current attitude. The sliding-mode thrust is already the thrust of the
     tilted vehicle, so the mapping pre-multiplies by the same factor and the boost cancels.
 
 Torque -> attitude / body-rate setpoint (``--output attitude``)
@@ -282,7 +282,8 @@ class CommandMapper:
         rf = model_body_to_frd(_clip(rates[0], -rr, rr), _clip(rates[1], -rr, rr), _clip(rates[2], -rr, rr))
         u = self.thrust_norm(cmd.thrust)
         if ap.flavour == "ardupilot" and ap.angle_boost:
-            u *= max(math.cos(phi_sp) * math.cos(theta_sp), 0.5)
+            # AC_AttitudeControl_Multi::get_throttle_boosted divides by the CURRENT tilt (AHRS cos roll x cos pitch)
+            u *= max(math.cos(est.phi) * math.cos(est.theta), 0.5)
         return AttitudeTarget(q_ned, rf[0], rf[1], rf[2], self._slew_thrust(u, dt), mask)
 
 

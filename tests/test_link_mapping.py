@@ -79,10 +79,14 @@ def test_ardupilot_angle_boost_is_pre_compensated() -> None:
     px4 = CommandMapper(v).map(0.0, _cmd(v.hover_thrust), est)
     ap = CommandMapper(v, autopilot=AutopilotModel(flavour="ardupilot", angle_boost=True)).map(
         0.0, _cmd(v.hover_thrust), est)
-    phi_sp = frames.quaternion_to_euler(*frames.ned_quaternion_to_model(*ap.q))[0]
-    assert ap.thrust == pytest.approx(px4.thrust * math.cos(phi_sp), rel=1e-9)
-    # what ArduPilot does with it (throttle / cos(tilt)) gives back the un-boosted throttle
-    assert ap.thrust / max(math.cos(phi_sp), 0.5) == pytest.approx(px4.thrust, rel=1e-9)
+    assert ap.thrust == pytest.approx(px4.thrust * math.cos(0.3), rel=1e-9)
+    # what ArduPilot does with it (throttle / cos(current tilt), the emulator's copy of it) gives back the thrust
+    from sim_bridge.airframe import angle_boost
+
+    assert angle_boost(ap.thrust, 0.3, 0.0) == pytest.approx(px4.thrust, rel=1e-9)
+    off = CommandMapper(v, autopilot=AutopilotModel(flavour="ardupilot", angle_boost=False)).map(
+        0.0, _cmd(v.hover_thrust), est)
+    assert off.thrust == pytest.approx(px4.thrust, rel=1e-12)
 
 
 def test_actuator_output_normalizes_and_flips_to_frd() -> None:
