@@ -11,8 +11,9 @@ Thrust (both outputs)
     ``(M + m) g / T_max``): the vehicle's hover thrust then lands exactly on the autopilot's hover throttle.
     ArduPilot (``flavour="ardupilot"``): SET_ATTITUDE_TARGET thrust is a throttle only with GUID_OPTIONS bit 3
     (value 8, checked by ``offboard.link.management``); with ATC_ANGLE_BOOST on, ArduPilot multiplies the
-    throttle by ``1 / max(cos(phi) cos(theta), 0.5)`` of the current attitude. The sliding-mode thrust is already the thrust of the
-    tilted vehicle, so the mapping pre-multiplies by the same factor and the boost cancels.
+    throttle by ``1 / max(cos(phi) cos(theta), 0.5)`` of the current attitude. The sliding-mode thrust is already
+    the thrust of the tilted vehicle, so the mapping pre-multiplies by the same factor (estimated attitude) and the
+    boost cancels.
 
 Torque -> attitude / body-rate setpoint (``--output attitude``)
     The autopilot's inner loops are modelled as PX4's / ArduPilot's cascade: a P attitude loop on the quaternion
