@@ -55,7 +55,7 @@ from estimators.cable import cable_from_planar
 from estimators.control_state import ControlState
 from estimators.flatness import flat_chain, flat_constants, planar_state, world_tilt
 from estimators.frames import wrap_angle
-from estimators.linear_block import LinearBlock
+from estimators.linear_block import LinearBlock, predict_cov, update_one, update_pair, update_row
 from estimators.measurements import Attitude, Imu, LoadAngle, Measurement, PositionVelocity
 from estimators.vehicle import Vehicle
 
@@ -63,12 +63,10 @@ _DEG = math.pi / 180.0
 #: command input columns of each block (horizontal x and y, heading, height) and its slice of the output
 _N_INPUTS = 6  # x axis: n'' and the nonlinear remainder of a''; the same for y; psi''; z''
 
-_SLICE = (slice(0, 16), slice(16, 18), slice(18, 22))
-_UPDATES = {
-    "state": LinearBlock.update_state,
-    "states": LinearBlock.update_states,
-    "row": LinearBlock.update_row,
-}
+#: the in-place updates of :meth:`KalmanEstimator._update` by kind: adjacent pair, row, one state
+_FAST_UPDATES = (update_pair, update_row, update_one)
+_predict_cov = predict_cov
+dot = np.dot
 
 STATE_NAMES: tuple[str, ...] = (
     "p_x", "v_x", "alpha_y", "alpha_y_rate", "n_x", "n_x_rate", "d_x", "b_x",
@@ -201,6 +199,8 @@ class KalmanEstimator:
             "gated_load": 0,
         }
         self._out_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._ycache: dict[int, tuple[float, ...]] = {}
+        self._gate_reopen = tn.gate_reopen
         self._initialized = False
 
     # --------------------------------------------------------------------------------------------------------
@@ -216,14 +216,15 @@ class KalmanEstimator:
         sd = (tn.prior_pos, tn.prior_vel, tn.prior_swing, tn.prior_swing_rate, tn.prior_tilt, tn.prior_tilt_rate,
               tn.prior_d, tn.prior_bias)
         hp = np.diag(np.square(sd))
-        yx = np.array([[guess.psi, guess.psi_rate]])
-        yp = np.diag([tn.prior_psi**2, tn.prior_psi_rate**2])
+        yx = [guess.psi, guess.psi_rate]  # the heading block is plain floats: mean, covariance row-major
+        yp = [tn.prior_psi**2, 0.0, 0.0, tn.prior_psi_rate**2]
         zx = np.array([[guess.z, guess.z_rate, 0.0, 0.0]])
         zp = np.diag([tn.prior_z**2, tn.prior_z_rate**2, tn.prior_dz**2, tn.prior_bias**2])
         # delayed state per block: [time, means (batch, n), shared covariance (n, n)]
         self._core = [[float(t), hx, hp], [float(t), yx, yp], [float(t), zx, zp]]
         # output: the 22 means in STATE_NAMES order
-        self._out = np.concatenate((hx.ravel(), yx.ravel(), zx.ravel()))
+        self._out = out = np.concatenate((hx.ravel(), yx, zx.ravel()))
+        self._out_views = (out[0:16].reshape(2, 8), None, out[18:22].reshape(1, 4))
         self._t_out = float(t)
         self._pending: list[tuple[float, int, Measurement]] = []
         self._seq = 0
@@ -383,36 +384,88 @@ class KalmanEstimator:
         t0 = core[0]
         if t <= t0:
             return
-        blk = self._blocks[bi]
-        core[2] = blk.predict_cov(core[2], t - t0)
-        x = core[1]
         cmds = self._cmds
+        ncmd = len(cmds)
         j = 0
-        while j + 1 < len(cmds) and cmds[j + 1][0] <= t0:
+        while j + 1 < ncmd and cmds[j + 1][0] <= t0:
             j += 1
-        tc = t0
-        while True:
-            end = cmds[j + 1][0] if j + 1 < len(cmds) and cmds[j + 1][0] < t else t
-            if end > tc:
-                x = blk.predict_mean(x, end - tc, cmds[j][1][1 + bi])
-                tc = end
-            if end >= t:
-                break
-            j += 1
-        core[1] = x
+        if bi == 1:
+            self._advance_heading(core, t0, t, j)
+        else:
+            blk = self._blocks[bi]
+            core[2] = _predict_cov(blk, core[2], t - t0)
+            x = core[1]
+            ci = 1 + bi
+            tc = t0
+            while True:
+                end = cmds[j + 1][0] if j + 1 < ncmd and cmds[j + 1][0] < t else t
+                if end > tc:
+                    d = blk.discrete(end - tc)
+                    x = dot(x, d.phi_t)
+                    x += dot(cmds[j][1][ci], d.gamma_t)
+                    tc = end
+                if end >= t:
+                    break
+                j += 1
+            core[1] = x
         core[0] = t
         # forget the commands no block needs any more
-        tmin = min(c[0] for c in self._core)
+        c = self._core
+        tmin = min(c[0][0], c[1][0], c[2][0])
         k = 0
-        while k + 1 < len(cmds) and cmds[k + 1][0] <= tmin:
+        while k + 1 < ncmd and cmds[k + 1][0] <= tmin:
             k += 1
         if k:
             del cmds[:k]
 
+    def _heading_model(self, h: float) -> tuple[float, ...]:
+        """The heading block's discrete model for a step ``h`` as plain floats (phi00, phi01, phi10, phi11,
+        gamma0, gamma1, q00, q01, q10, q11), cached like :meth:`LinearBlock.discrete`."""
+        key = round(h * 1e7)
+        mdl = self._ycache.get(key)
+        if mdl is None:
+            d = self._yb.discrete(h)
+            (f00, f01), (f10, f11) = d.phi.tolist()
+            g0, g1 = d.gamma_t[0].tolist()
+            (q00, q01), (q10, q11) = d.q.tolist()
+            if len(self._ycache) >= 4096:
+                self._ycache.clear()
+            mdl = self._ycache[key] = (f00, f01, f10, f11, g0, g1, q00, q01, q10, q11)
+        return mdl
+
+    def _advance_heading(self, core: list, t0: float, t: float, j: int) -> None:
+        """:meth:`_advance_core` for the heading block, whose mean and covariance are plain floats."""
+        f00, f01, f10, f11, _, _, q00, q01, q10, q11 = self._heading_model(t - t0)
+        p00, p01, p10, p11 = core[2]
+        a0, a1 = p00 * f00 + p01 * f01, p00 * f10 + p01 * f11  # (P Phi^T) row 0
+        b0, b1 = p10 * f00 + p11 * f01, p10 * f10 + p11 * f11  # row 1
+        p00, p01 = f00 * a0 + f01 * b0 + q00, f00 * a1 + f01 * b1 + q01
+        p10, p11 = f10 * a0 + f11 * b0 + q10, f10 * a1 + f11 * b1 + q11
+        yb = self._yb
+        yb._n_predict += 1
+        if yb._n_predict % 16 == 0:
+            p01 = p10 = 0.5 * (p01 + p10)
+        core[2] = [p00, p01, p10, p11]
+        x0, x1 = core[1]
+        cmds = self._cmds
+        ncmd = len(cmds)
+        tc = t0
+        while True:
+            end = cmds[j + 1][0] if j + 1 < ncmd and cmds[j + 1][0] < t else t
+            if end > tc:
+                f00, f01, f10, f11, g0, g1 = self._heading_model(end - tc)[:6]
+                w = cmds[j][1][2]
+                x0, x1 = x0 * f00 + x1 * f01 + w * g0, x0 * f10 + x1 * f11 + w * g1
+                tc = end
+            if end >= t:
+                break
+            j += 1
+        core[1] = [x0, x1]
+
     @staticmethod
-    def _command_views(w: np.ndarray) -> tuple[np.ndarray, ...]:
-        """(all 6 inputs, horizontal (2, 2), heading (1, 1), height (1, 1)): views for each block."""
-        return (w, w[0:4].reshape(2, 2), w[4:5].reshape(1, 1), w[5:6].reshape(1, 1))
+    def _command_views(w: np.ndarray) -> tuple:
+        """(all 6 inputs, horizontal (2, 2), heading (float), height (1, 1)): the inputs of each block."""
+        return (w, w[0:4].reshape(2, 2), float(w[4]), w[5:6].reshape(1, 1))
 
     def _active_command(self, t: float) -> np.ndarray:
         """The command inputs in force at time ``t`` (s)."""
@@ -434,12 +487,13 @@ class KalmanEstimator:
             end = cmds[j + 1][0] if j + 1 < len(cmds) and cmds[j + 1][0] < t else t
             if end > tc:
                 phi_t, gamma_t = self._output_model(end - tc)
-                out = out @ phi_t + cmds[j][1][0] @ gamma_t
+                new = dot(out, phi_t)
+                new += dot(cmds[j][1][0], gamma_t)
+                out[:] = new
                 tc = end
             if end >= t:
                 break
             j += 1
-        self._out = out
         self._t_out = t
 
     def _output_model(self, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -464,39 +518,89 @@ class KalmanEstimator:
         return mdl
 
     def _correct_output(self, bi: int, dx: np.ndarray) -> None:
-        """Carry a correction of the delayed state of block ``bi`` to the output."""
+        """Carry a correction ``dx`` (batch, n) of the delayed state of block ``bi`` (0 or 2) to the output."""
         h = self._t_out - self._core[bi][0]
+        view = self._out_views[bi]
         if h > 0.0:
-            dx = dx @ self._blocks[bi].discrete(h).phi_t
-        self._out[_SLICE[bi]] += dx.ravel()
+            view += dot(dx, self._blocks[bi].discrete(h).phi_t)
+        else:
+            view += dx
 
     def _output_covariances(self) -> list[np.ndarray]:
         res = []
         for bi, blk in enumerate(self._blocks):
             t0, _, p = self._core[bi]
+            if bi == 1:
+                p = np.array(p).reshape(2, 2)
             h = self._t_out - t0
             res.append(blk.predict_cov(p, h) if h > 0.0 else p)
         return res
 
-    def _update(self, bi: int, name: str, kind: str, arg: object, z: tuple[float, ...], r: object, dof: int) -> bool:
-        """One gated update of block ``bi`` (``kind``: "state" (arg = index), "states" (arg = index pair) or
-        "row" (arg = measurement row)); returns False when gated."""
+    def _gated(self, name: str) -> bool:
+        """Count a gated update of stream ``name``; True when the gate must reopen (the stream has been
+        rejected too long: the filter, not the sensor, is wrong) and the update be done ungated."""
+        self._stats["gated_" + name] += 1
+        run = self._gated_run[name] + 1
+        if run <= self._gate_reopen:
+            self._gated_run[name] = run
+            return False
+        self._stats["gate_reopened"] += 1
+        return True
+
+    def _update(self, bi: int, name: str, kind: int, arg: object, z: tuple[float, ...], r: object, dof: int) -> bool:
+        """One gated update of block ``bi`` (0 or 2; ``kind``: 0 = two adjacent states (arg = first index),
+        1 = a measurement row (arg = the row), 2 = one state (arg = its index)); returns False when gated."""
         core = self._core[bi]
-        fn = _UPDATES[kind]
+        fn = _FAST_UPDATES[kind]
         dx = fn(core[1], core[2], arg, z, r, self._gate[dof])
         if dx is None:
-            self._stats["gated_" + name] += 1
-            run = self._gated_run[name] + 1
-            if run <= self.tuning.gate_reopen:
-                self._gated_run[name] = run
+            if not self._gated(name):
                 return False
-            # the stream has been rejected too long: the filter, not the sensor, is wrong; accept it
-            self._stats["gate_reopened"] += 1
             dx = fn(core[1], core[2], arg, z, r, math.inf)
             if dx is None:
                 return False
         self._gated_run[name] = 0
         self._correct_output(bi, dx)
+        return True
+
+    def _update_heading(self, z0: float, z1: float) -> bool:
+        """Gated update of the heading block with heading ``z0`` (rad) and its rate ``z1`` (rad/s), plain floats
+        (the same arithmetic as :meth:`LinearBlock.update_states` on the 2 x 2 block)."""
+        core = self._core[1]
+        r0, r1 = self._r["yaw"]
+        gate = self._gate[2]
+        x0, x1 = core[1]
+        p00, p01, p10, p11 = core[2]
+        s11 = p00 + r0
+        s12 = p01
+        s22 = p11 + r1
+        det = s11 * s22 - s12 * s12
+        y0, y1 = z0 - x0, z1 - x1
+        while True:
+            if det > 0.0:
+                i00, i01, i10, i11 = s22 / det, -s12 / det, -s12 / det, s11 / det
+                ys0, ys1 = y0 * i00 + y1 * i10, y0 * i01 + y1 * i11
+                if ys0 * y0 + ys1 * y1 <= gate:
+                    break
+            if gate == math.inf or not self._gated("psi"):
+                return False
+            gate = math.inf
+        dx0, dx1 = ys0 * p00 + ys1 * p01, ys0 * p10 + ys1 * p11
+        g00, g01 = p00 * i00 + p01 * i10, p00 * i01 + p01 * i11  # G = P S^-1
+        g10, g11 = p10 * i00 + p11 * i10, p10 * i01 + p11 * i11
+        core[2] = [p00 - (g00 * p00 + g01 * p01), p01 - (g00 * p10 + g01 * p11),
+                   p10 - (g10 * p00 + g11 * p01), p11 - (g10 * p10 + g11 * p11)]
+        core[1] = [x0 + dx0, x1 + dx1]
+        self._gated_run["psi"] = 0
+        h = self._t_out - core[0]
+        out = self._out
+        if h > 0.0:
+            f00, f01, f10, f11 = self._heading_model(h)[:4]
+            out[16] += dx0 * f00 + dx1 * f01
+            out[17] += dx0 * f10 + dx1 * f11
+        else:
+            out[16] += dx0
+            out[17] += dx1
         return True
 
     def _fuse(self, m: Measurement) -> None:
@@ -506,8 +610,8 @@ class KalmanEstimator:
         if isinstance(m, PositionVelocity):
             self._advance_core(0, t)
             self._advance_core(2, t)
-            ok &= self._update(0, "pos", "states", (IP, IV), (m.x, m.vx, m.y, m.vy), r["pv_xy"], 4)
-            ok &= self._update(2, "z", "states", (0, 1), (m.z, m.vz), r["pv_z"], 2)
+            ok &= self._update(0, "pos", 0, IP, (m.x, m.vx, m.y, m.vy), r["pv_xy"], 4)
+            ok &= self._update(2, "z", 0, 0, (m.z, m.vz), r["pv_z"], 2)
         elif isinstance(m, Attitude):
             self._advance_core(0, t)
             self._advance_core(1, t)
@@ -522,34 +626,33 @@ class KalmanEstimator:
             theta_rate = cf * m.q - sf * m.r
             psi_rate = (sf * m.q + cf * m.r) / ct
             nx, ny, nxd, nyd = world_tilt(phi, theta, psi, phi_rate, theta_rate, psi_rate)
-            psi_est = float(self._core[1][1][0, 0])
-            ok &= self._update(0, "tilt", "states", (IN, IND), (nx, nxd, ny, nyd), r["tilt"], 4)
-            ok &= self._update(1, "psi", "states", (0, 1), (psi_est + wrap_angle(psi - psi_est), psi_rate), r["yaw"], 2)
+            psi_est = self._core[1][1][0]
+            ok &= self._update(0, "tilt", 0, IN, (nx, nxd, ny, nyd), r["tilt"], 4)
+            ok &= self._update_heading(psi_est + wrap_angle(psi - psi_est), psi_rate)
         elif isinstance(m, Imu):
             self._advance_core(0, t)
             a = self.tuning.accel_gain_filter
             fz = min(max(m.az, 0.2 * self._g), 3.0 * self._g)
             self._fz += a * (fz - self._fz)
             gain = self._m_over_M * self._fz
-            psi = float(self._core[1][1][0, 0])
+            psi = self._core[1][1][0]
             cp, sp = math.cos(psi), math.sin(psi)
             row = self._acc_row
             row[IA] = gain
             row[IN] = gain
             z = (cp * m.ax - sp * m.ay, sp * m.ax + cp * m.ay)
-            ok &= self._update(0, "acc", "row", row, z, r["acc"], 2)
+            ok &= self._update(0, "acc", 1, row, z, r["acc"], 2)
             # vertical: the world-vertical specific force minus g is z'' = (commanded part) + d_z, plus b_z
             self._advance_core(2, t)
-            hx = self._core[0][1]
-            nx, ny = float(hx[0, IN]), float(hx[1, IN])
+            nx, ny = self._core[0][1][:, IN].tolist()
             theta, phi = nx * cp + ny * sp, nx * sp - ny * cp
             ct = math.cos(theta)
             fz_world = -math.sin(theta) * m.ax + ct * math.sin(phi) * m.ay + ct * math.cos(phi) * m.az
             w_z = float(self._active_command(self._core[2][0])[5])
-            ok &= self._update(2, "acc_z", "row", self._accz_row, (fz_world - self._g - w_z,), r["acc"], 1)
+            ok &= self._update(2, "acc_z", 1, self._accz_row, (fz_world - self._g - w_z,), r["acc"], 1)
         elif isinstance(m, LoadAngle):
             self._advance_core(0, t)
-            ok &= self._update(0, "load", "state", IA, (m.alpha_y, m.alpha_x), r["load"], 2)
+            ok &= self._update(0, "load", 2, IA, (m.alpha_y, m.alpha_x), r["load"], 2)
         else:  # pragma: no cover - the type union is closed
             self._stats["not_used"] += 1
             return

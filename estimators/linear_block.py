@@ -163,3 +163,91 @@ class LinearBlock:
         x += dx
         p -= np.multiply.outer(ph, ph) * (1.0 / s)  # exactly symmetric
         return dx
+
+
+# Allocation-lean versions of the operations above, used by the filter's hot path ---------------------------------
+# Same arithmetic (to rounding) as the methods of LinearBlock, with the 2 x 2 algebra in plain floats and
+# np.dot (several times cheaper than ``@`` on tiny arrays) for the rest.
+_dot = np.dot
+_outer = np.multiply.outer
+
+
+def predict_cov(blk: LinearBlock, p: np.ndarray, h: float) -> np.ndarray:
+    """:meth:`LinearBlock.predict_cov` (shares its re-symmetrization counter)."""
+    d = blk.discrete(h)
+    p = _dot(_dot(d.phi, p), d.phi_t)
+    p += d.q
+    blk._n_predict += 1
+    if blk._n_predict % 16 == 0:
+        p = 0.5 * (p + p.T)
+    return p
+
+
+def update_pair(
+    x: np.ndarray, p: np.ndarray, i: int, z: tuple[float, ...], r: tuple[float, float], gate: float
+) -> np.ndarray | None:
+    """:meth:`LinearBlock.update_states` for the adjacent pair of states ``(i, i + 1)``."""
+    ph = p[:, i:i + 2]  # a view: every product below is formed before p is written
+    (s11, s12), (_, s22) = p[i:i + 2, i:i + 2].tolist()
+    s11 += r[0]
+    s22 += r[1]
+    det = s11 * s22 - s12 * s12
+    if not det > 0.0:
+        return None
+    a, b, d = s22 / det, -s12 / det, s11 / det
+    xs = x[:, i:i + 2].tolist()
+    ys = []
+    nis = 0.0
+    for c, (x0, x1) in enumerate(xs):
+        y0, y1 = z[2 * c] - x0, z[2 * c + 1] - x1
+        ys0, ys1 = y0 * a + y1 * b, y0 * b + y1 * d
+        nis += ys0 * y0 + ys1 * y1
+        ys.append((ys0, ys1))
+    if not nis <= gate:
+        return None
+    pht = ph.T
+    dx = _dot(ys, pht)
+    g = _dot(ph, ((a, b), (b, d)))
+    x += dx
+    p -= _dot(g, pht)
+    return dx
+
+
+def update_row(
+    x: np.ndarray, p: np.ndarray, h: np.ndarray, z: tuple[float, ...], r: float, gate: float
+) -> np.ndarray | None:
+    """:meth:`LinearBlock.update_row`."""
+    ph = _dot(p, h)
+    s = float(_dot(ph, h)) + r
+    y = [zc - xc for zc, xc in zip(z, _dot(x, h).tolist())]
+    yy = 0.0
+    for v in y:
+        yy += v * v
+    if not yy <= gate * s:
+        return None
+    dx = _outer(y, ph / s)
+    x += dx
+    pp = _outer(ph, ph)
+    pp *= 1.0 / s
+    p -= pp
+    return dx
+
+
+def update_one(
+    x: np.ndarray, p: np.ndarray, i: int, z: tuple[float, ...], r: float, gate: float
+) -> np.ndarray | None:
+    """:meth:`LinearBlock.update_state`."""
+    s = float(p[i, i]) + r
+    y = [zc - xc for zc, xc in zip(z, x[:, i].tolist())]
+    yy = 0.0
+    for v in y:
+        yy += v * v
+    if not (s > 0.0 and yy <= gate * s):
+        return None
+    ph = p[:, i].copy()
+    dx = _outer(y, ph / s)
+    x += dx
+    pp = _outer(ph, ph)
+    pp *= 1.0 / s
+    p -= pp
+    return dx
