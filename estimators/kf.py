@@ -183,7 +183,6 @@ class KalmanEstimator:
         self._blocks = (self._hb, self._yb, self._zb)
         for blk in self._blocks:  # warm the cache with the control step
             blk.discrete(1.0 / rate_hz)
-        self._accz_row = np.array((0.0, 0.0, 1.0, 1.0))
         self._acc_row = np.zeros(8)
         self._acc_row[[ID, IB]] = 1.0
         self._gate = {dof: float(chi2.ppf(tn.gate_probability, dof)) for dof in (1, 2, 4)}
@@ -200,6 +199,7 @@ class KalmanEstimator:
         }
         self._out_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._ycache: dict[int, tuple[float, ...]] = {}
+        self._zcache: dict[int, tuple[float, ...]] = {}
         self._gate_reopen = tn.gate_reopen
         self._initialized = False
 
@@ -218,13 +218,13 @@ class KalmanEstimator:
         hp = np.diag(np.square(sd))
         yx = [guess.psi, guess.psi_rate]  # the heading block is plain floats: mean, covariance row-major
         yp = [tn.prior_psi**2, 0.0, 0.0, tn.prior_psi_rate**2]
-        zx = np.array([[guess.z, guess.z_rate, 0.0, 0.0]])
-        zp = np.diag([tn.prior_z**2, tn.prior_z_rate**2, tn.prior_dz**2, tn.prior_bias**2])
+        zx = [guess.z, guess.z_rate, 0.0, 0.0]  # the height block is plain floats: mean, upper triangle of P
+        zp = [tn.prior_z**2, 0.0, 0.0, 0.0, tn.prior_z_rate**2, 0.0, 0.0, tn.prior_dz**2, 0.0, tn.prior_bias**2]
         # delayed state per block: [time, means (batch, n), shared covariance (n, n)]
         self._core = [[float(t), hx, hp], [float(t), yx, yp], [float(t), zx, zp]]
         # output: the 22 means in STATE_NAMES order
-        self._out = out = np.concatenate((hx.ravel(), yx, zx.ravel()))
-        self._out_views = (out[0:16].reshape(2, 8), None, out[18:22].reshape(1, 4))
+        self._out = out = np.concatenate((hx.ravel(), yx, zx))
+        self._out_view_h = out[0:16].reshape(2, 8)
         self._t_out = float(t)
         self._pending: list[tuple[float, int, Measurement]] = []
         self._seq = 0
@@ -391,11 +391,13 @@ class KalmanEstimator:
             j += 1
         if bi == 1:
             self._advance_heading(core, t0, t, j)
+        elif bi == 2:
+            self._advance_height(core, t0, t, j)
         else:
-            blk = self._blocks[bi]
+            blk = self._hb
             core[2] = _predict_cov(blk, core[2], t - t0)
             x = core[1]
-            ci = 1 + bi
+            ci = 1
             tc = t0
             while True:
                 end = cmds[j + 1][0] if j + 1 < ncmd and cmds[j + 1][0] < t else t
@@ -462,10 +464,134 @@ class KalmanEstimator:
             j += 1
         core[1] = [x0, x1]
 
+    def _height_model(self, h: float) -> tuple[float, ...]:
+        """The height block's discrete model for a step ``h`` as plain floats: the three off-diagonal entries
+        (phi01, phi02, phi12) of Phi (the rest of Phi is the identity exactly: ``A`` is nilpotent and only
+        chains z, z', d_z), the input column (gamma0, gamma1; the rest is zero) and the 10 entries of the upper
+        triangle of Q, row-major; cached like :meth:`LinearBlock.discrete`."""
+        key = round(h * 1e7)
+        mdl = self._zcache.get(key)
+        if mdl is None:
+            d = self._zb.discrete(h)
+            f = d.phi
+            structure = f.copy()
+            structure[0, 1] = structure[0, 2] = structure[1, 2] = 0.0
+            g = d.gamma_t[0]
+            if not (np.array_equal(structure, np.eye(4)) and g[2] == 0.0 and g[3] == 0.0):  # pragma: no cover
+                raise RuntimeError("height model: Phi or Gamma lost the structure the float code relies on")
+            q = d.q
+            mdl = (float(f[0, 1]), float(f[0, 2]), float(f[1, 2]), float(g[0]), float(g[1]),
+                   *(float(q[i, j]) for i in range(4) for j in range(i, 4)))
+            if len(self._zcache) >= 4096:
+                self._zcache.clear()
+            self._zcache[key] = mdl
+        return mdl
+
+    def _advance_height(self, core: list, t0: float, t: float, j: int) -> None:
+        """:meth:`_advance_core` for the height block (mean and covariance plain floats; the covariance is kept
+        as its upper triangle, row-major: P00 P01 P02 P03 P11 P12 P13 P22 P23 P33)."""
+        a, b, c, _, _, q00, q01, q02, q03, q11, q12, q13, q22, q23, q33 = self._height_model(t - t0)
+        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = core[2]
+        # M = Phi P (rows 0 and 1 change), then Phi M Phi^T's upper triangle
+        m00, m01, m02, m03 = p00 + a * p01 + b * p02, p01 + a * p11 + b * p12, p02 + a * p12 + b * p22, \
+            p03 + a * p13 + b * p23
+        m11, m12, m13 = p11 + c * p12, p12 + c * p22, p13 + c * p23
+        core[2] = [m00 + a * m01 + b * m02 + q00, m01 + c * m02 + q01, m02 + q02, m03 + q03,
+                   m11 + c * m12 + q11, m12 + q12, m13 + q13, p22 + q22, p23 + q23, p33 + q33]
+        x0, x1, x2, x3 = core[1]
+        cmds = self._cmds
+        ncmd = len(cmds)
+        tc = t0
+        while True:
+            end = cmds[j + 1][0] if j + 1 < ncmd and cmds[j + 1][0] < t else t
+            if end > tc:
+                a, b, c, g0, g1 = self._height_model(end - tc)[:5]
+                w = cmds[j][1][3]
+                x0, x1 = x0 + a * x1 + b * x2 + g0 * w, x1 + c * x2 + g1 * w
+                tc = end
+            if end >= t:
+                break
+            j += 1
+        core[1] = [x0, x1, x2, x3]
+
+    def _correct_height(self, dx0: float, dx1: float, dx2: float, dx3: float) -> None:
+        """Carry a correction of the delayed height state to the output (``Phi(t_out - t_core) dx``)."""
+        h = self._t_out - self._core[2][0]
+        out = self._out
+        if h > 0.0:
+            a, b, c = self._height_model(h)[:3]
+            out[18] += dx0 + a * dx1 + b * dx2
+            out[19] += dx1 + c * dx2
+        else:
+            out[18] += dx0
+            out[19] += dx1
+        out[20] += dx2
+        out[21] += dx3
+
+    def _update_height_pv(self, z0: float, z1: float) -> bool:
+        """Gated update of the height block with height ``z0`` (m) and vertical velocity ``z1`` (m/s): the same
+        arithmetic as :meth:`LinearBlock.update_states` on states (0, 1), in plain floats."""
+        core = self._core[2]
+        r0, r1 = self._r["pv_z"]
+        gate = self._gate[2]
+        x0, x1, x2, x3 = core[1]
+        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = core[2]
+        s11, s12, s22 = p00 + r0, p01, p11 + r1
+        det = s11 * s22 - s12 * s12
+        y0, y1 = z0 - x0, z1 - x1
+        while True:
+            if det > 0.0:
+                ia, ib, id_ = s22 / det, -s12 / det, s11 / det
+                ys0, ys1 = y0 * ia + y1 * ib, y0 * ib + y1 * id_
+                if ys0 * y0 + ys1 * y1 <= gate:
+                    break
+            if gate == math.inf or not self._gated("z"):
+                return False
+            gate = math.inf
+        # columns 0 and 1 of P: (p00, p01, p02, p03) and (p01, p11, p12, p13); G = [col0 col1] S^-1
+        g00, g01 = p00 * ia + p01 * ib, p00 * ib + p01 * id_
+        g10, g11 = p01 * ia + p11 * ib, p01 * ib + p11 * id_
+        g20, g21 = p02 * ia + p12 * ib, p02 * ib + p12 * id_
+        g30, g31 = p03 * ia + p13 * ib, p03 * ib + p13 * id_
+        core[2] = [p00 - (g00 * p00 + g01 * p01), p01 - (g00 * p01 + g01 * p11), p02 - (g00 * p02 + g01 * p12),
+                   p03 - (g00 * p03 + g01 * p13), p11 - (g10 * p01 + g11 * p11), p12 - (g10 * p02 + g11 * p12),
+                   p13 - (g10 * p03 + g11 * p13), p22 - (g20 * p02 + g21 * p12), p23 - (g20 * p03 + g21 * p13),
+                   p33 - (g30 * p03 + g31 * p13)]
+        dx0, dx1, dx2, dx3 = ys0 * p00 + ys1 * p01, ys0 * p01 + ys1 * p11, ys0 * p02 + ys1 * p12, \
+            ys0 * p03 + ys1 * p13
+        core[1] = [x0 + dx0, x1 + dx1, x2 + dx2, x3 + dx3]
+        self._gated_run["z"] = 0
+        self._correct_height(dx0, dx1, dx2, dx3)
+        return True
+
+    def _update_height_acc(self, z: float) -> bool:
+        """Gated update of the height block with ``z`` = measured ``z'' - commanded part = d_z + b_z`` (m/s^2):
+        :meth:`LinearBlock.update_row` with the row (0, 0, 1, 1), in plain floats."""
+        core = self._core[2]
+        r = self._r["acc"]
+        gate = self._gate[1]
+        x0, x1, x2, x3 = core[1]
+        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = core[2]
+        h0, h1, h2, h3 = p02 + p03, p12 + p13, p22 + p23, p23 + p33  # P h
+        s = h2 + h3 + r
+        y = z - (x2 + x3)
+        while not y * y <= gate * s:
+            if gate == math.inf or not self._gated("acc_z"):
+                return False
+            gate = math.inf
+        k0, k1, k2, k3 = h0 / s, h1 / s, h2 / s, h3 / s
+        core[2] = [p00 - h0 * k0, p01 - h0 * k1, p02 - h0 * k2, p03 - h0 * k3, p11 - h1 * k1, p12 - h1 * k2,
+                   p13 - h1 * k3, p22 - h2 * k2, p23 - h2 * k3, p33 - h3 * k3]
+        dx0, dx1, dx2, dx3 = y * k0, y * k1, y * k2, y * k3
+        core[1] = [x0 + dx0, x1 + dx1, x2 + dx2, x3 + dx3]
+        self._gated_run["acc_z"] = 0
+        self._correct_height(dx0, dx1, dx2, dx3)
+        return True
+
     @staticmethod
     def _command_views(w: np.ndarray) -> tuple:
-        """(all 6 inputs, horizontal (2, 2), heading (float), height (1, 1)): the inputs of each block."""
-        return (w, w[0:4].reshape(2, 2), float(w[4]), w[5:6].reshape(1, 1))
+        """(all 6 inputs, horizontal (2, 2), heading (float), height (float)): the inputs of each block."""
+        return (w, w[0:4].reshape(2, 2), float(w[4]), float(w[5]))
 
     def _active_command(self, t: float) -> np.ndarray:
         """The command inputs in force at time ``t`` (s)."""
@@ -517,14 +643,13 @@ class KalmanEstimator:
             mdl = self._out_cache[key] = (phi_t, gamma_t)
         return mdl
 
-    def _correct_output(self, bi: int, dx: np.ndarray) -> None:
-        """Carry a correction ``dx`` (batch, n) of the delayed state of block ``bi`` (0 or 2) to the output."""
-        h = self._t_out - self._core[bi][0]
-        view = self._out_views[bi]
+    def _correct_output(self, dx: np.ndarray) -> None:
+        """Carry a correction ``dx`` (2, 8) of the delayed horizontal state to the output."""
+        h = self._t_out - self._core[0][0]
         if h > 0.0:
-            view += dot(dx, self._blocks[bi].discrete(h).phi_t)
+            self._out_view_h += dot(dx, self._hb.discrete(h).phi_t)
         else:
-            view += dx
+            self._out_view_h += dx
 
     def _output_covariances(self) -> list[np.ndarray]:
         res = []
@@ -532,6 +657,9 @@ class KalmanEstimator:
             t0, _, p = self._core[bi]
             if bi == 1:
                 p = np.array(p).reshape(2, 2)
+            elif bi == 2:
+                p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = p
+                p = np.array(((p00, p01, p02, p03), (p01, p11, p12, p13), (p02, p12, p22, p23), (p03, p13, p23, p33)))
             h = self._t_out - t0
             res.append(blk.predict_cov(p, h) if h > 0.0 else p)
         return res
@@ -547,10 +675,10 @@ class KalmanEstimator:
         self._stats["gate_reopened"] += 1
         return True
 
-    def _update(self, bi: int, name: str, kind: int, arg: object, z: tuple[float, ...], r: object, dof: int) -> bool:
-        """One gated update of block ``bi`` (0 or 2; ``kind``: 0 = two adjacent states (arg = first index),
+    def _update(self, name: str, kind: int, arg: object, z: tuple[float, ...], r: object, dof: int) -> bool:
+        """One gated update of the horizontal block (``kind``: 0 = two adjacent states (arg = first index),
         1 = a measurement row (arg = the row), 2 = one state (arg = its index)); returns False when gated."""
-        core = self._core[bi]
+        core = self._core[0]
         fn = _FAST_UPDATES[kind]
         dx = fn(core[1], core[2], arg, z, r, self._gate[dof])
         if dx is None:
@@ -560,7 +688,7 @@ class KalmanEstimator:
             if dx is None:
                 return False
         self._gated_run[name] = 0
-        self._correct_output(bi, dx)
+        self._correct_output(dx)
         return True
 
     def _update_heading(self, z0: float, z1: float) -> bool:
@@ -610,8 +738,8 @@ class KalmanEstimator:
         if isinstance(m, PositionVelocity):
             self._advance_core(0, t)
             self._advance_core(2, t)
-            ok &= self._update(0, "pos", 0, IP, (m.x, m.vx, m.y, m.vy), r["pv_xy"], 4)
-            ok &= self._update(2, "z", 0, 0, (m.z, m.vz), r["pv_z"], 2)
+            ok &= self._update("pos", 0, IP, (m.x, m.vx, m.y, m.vy), r["pv_xy"], 4)
+            ok &= self._update_height_pv(m.z, m.vz)
         elif isinstance(m, Attitude):
             self._advance_core(0, t)
             self._advance_core(1, t)
@@ -627,7 +755,7 @@ class KalmanEstimator:
             psi_rate = (sf * m.q + cf * m.r) / ct
             nx, ny, nxd, nyd = world_tilt(phi, theta, psi, phi_rate, theta_rate, psi_rate)
             psi_est = self._core[1][1][0]
-            ok &= self._update(0, "tilt", 0, IN, (nx, nxd, ny, nyd), r["tilt"], 4)
+            ok &= self._update("tilt", 0, IN, (nx, nxd, ny, nyd), r["tilt"], 4)
             ok &= self._update_heading(psi_est + wrap_angle(psi - psi_est), psi_rate)
         elif isinstance(m, Imu):
             self._advance_core(0, t)
@@ -641,7 +769,7 @@ class KalmanEstimator:
             row[IA] = gain
             row[IN] = gain
             z = (cp * m.ax - sp * m.ay, sp * m.ax + cp * m.ay)
-            ok &= self._update(0, "acc", 1, row, z, r["acc"], 2)
+            ok &= self._update("acc", 1, row, z, r["acc"], 2)
             # vertical: the world-vertical specific force minus g is z'' = (commanded part) + d_z, plus b_z
             self._advance_core(2, t)
             nx, ny = self._core[0][1][:, IN].tolist()
@@ -649,10 +777,10 @@ class KalmanEstimator:
             ct = math.cos(theta)
             fz_world = -math.sin(theta) * m.ax + ct * math.sin(phi) * m.ay + ct * math.cos(phi) * m.az
             w_z = float(self._active_command(self._core[2][0])[5])
-            ok &= self._update(2, "acc_z", 1, self._accz_row, (fz_world - self._g - w_z,), r["acc"], 1)
+            ok &= self._update_height_acc(fz_world - self._g - w_z)
         elif isinstance(m, LoadAngle):
             self._advance_core(0, t)
-            ok &= self._update(0, "load", 2, IA, (m.alpha_y, m.alpha_x), r["load"], 2)
+            ok &= self._update("load", 2, IA, (m.alpha_y, m.alpha_x), r["load"], 2)
         else:  # pragma: no cover - the type union is closed
             self._stats["not_used"] += 1
             return

@@ -186,8 +186,11 @@ def predict_cov(blk: LinearBlock, p: np.ndarray, h: float) -> np.ndarray:
 def update_pair(
     x: np.ndarray, p: np.ndarray, i: int, z: tuple[float, ...], r: tuple[float, float], gate: float
 ) -> np.ndarray | None:
-    """:meth:`LinearBlock.update_states` for the adjacent pair of states ``(i, i + 1)``."""
-    ph = p[:, i:i + 2]  # a view: every product below is formed before p is written
+    """:meth:`LinearBlock.update_states` for the adjacent pair of states ``(i, i + 1)``.
+
+    Uses rows ``i, i + 1`` of P where the original uses its columns (P is symmetric): the gain, the state
+    correction and the covariance reduction come from one product ``[S^-1; y S^-1] P[i:i+2]``.
+    """
     (s11, s12), (_, s22) = p[i:i + 2, i:i + 2].tolist()
     s11 += r[0]
     s22 += r[1]
@@ -195,21 +198,20 @@ def update_pair(
     if not det > 0.0:
         return None
     a, b, d = s22 / det, -s12 / det, s11 / det
-    xs = x[:, i:i + 2].tolist()
-    ys = []
+    rows = [(a, b), (b, d)]
     nis = 0.0
-    for c, (x0, x1) in enumerate(xs):
+    for c, (x0, x1) in enumerate(x[:, i:i + 2].tolist()):
         y0, y1 = z[2 * c] - x0, z[2 * c + 1] - x1
         ys0, ys1 = y0 * a + y1 * b, y0 * b + y1 * d
         nis += ys0 * y0 + ys1 * y1
-        ys.append((ys0, ys1))
+        rows.append((ys0, ys1))
     if not nis <= gate:
         return None
-    pht = ph.T
-    dx = _dot(ys, pht)
-    g = _dot(ph, ((a, b), (b, d)))
+    pr = p[i:i + 2]  # a view: the products are formed before p is written
+    kd = _dot(rows, pr)  # rows 0-1: S^-1 P[i:i+2] (the gain, transposed); then the corrections
+    dx = kd[2:]
+    p -= _dot(pr.T, kd[:2])
     x += dx
-    p -= _dot(g, pht)
     return dx
 
 
@@ -225,11 +227,12 @@ def update_row(
         yy += v * v
     if not yy <= gate * s:
         return None
-    dx = _outer(y, ph / s)
+    inv_s = 1.0 / s
+    kd = _outer([*ph.tolist(), *y], ph)  # rows 0-7: P h h^T P; then y_c (P h)
+    kd *= inv_s
+    dx = kd[-len(y):]
+    p -= kd[:-len(y)]
     x += dx
-    pp = _outer(ph, ph)
-    pp *= 1.0 / s
-    p -= pp
     return dx
 
 
@@ -244,10 +247,10 @@ def update_one(
         yy += v * v
     if not (s > 0.0 and yy <= gate * s):
         return None
-    ph = p[:, i].copy()
-    dx = _outer(y, ph / s)
+    ph = p[:, i]
+    kd = _outer([*ph.tolist(), *y], ph)
+    kd *= 1.0 / s
+    dx = kd[-len(y):]
+    p -= kd[:-len(y)]
     x += dx
-    pp = _outer(ph, ph)
-    pp *= 1.0 / s
-    p -= pp
     return dx
