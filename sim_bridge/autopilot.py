@@ -1004,7 +1004,7 @@ class Autopilot:
         if self.armed and on_ground and (self.k & 63) == 0:
             self._auto_disarm(t_us)
         if self._tel_history:
-            self.tel.record(t_us, x, u)
+            self.tel.record(t_us, x, u, on_ground)
         if t_us >= self.next_due:
             self._emit_due(t_us, x, u)
 
@@ -1038,7 +1038,7 @@ class Autopilot:
                     pass
                 else:
                     if snap is None:
-                        snap = self.tel.snapshot(t_us, x, u)
+                        snap = self.tel.snapshot(t_us, x, u, self.on_ground)
                     self.mav.send(BUILDERS[name](self.mav, snap, self))
             if s[1] < nd:
                 nd = s[1]
@@ -1052,7 +1052,7 @@ class Autopilot:
                     ml.send(ml.heartbeat_encode(7, 8, 0, 0, 4))  # AIRSHIP, AUTOPILOT_INVALID, ACTIVE
                 elif ready:
                     if snap is None:
-                        snap = self.tel.snapshot(t_us, x, u)
+                        snap = self.tel.snapshot(t_us, x, u, self.on_ground)
                     fn = msg_load_global_position_int if name == "GLOBAL_POSITION_INT" else msg_load_attitude
                     ml.send(fn(ml, snap, self))
             if s[1] < nd:
@@ -1061,7 +1061,7 @@ class Autopilot:
         self._report_errors(t_us)
 
     def _send_stream(self, name: str, mav: Any) -> None:
-        snap = self.tel.snapshot(self.t_us, self.x, self.u)
+        snap = self.tel.snapshot(self.t_us, self.x, self.u, self.on_ground)
         mav.send(BUILDERS[name](mav, snap, self))
 
     def rephase(self) -> None:
@@ -1074,6 +1074,7 @@ class Autopilot:
         for s in self.load_streams.values():
             s[1] = t + s[0]
         self.k = 0
+        self.tel.rephase()
         self._recompute_next_due()
 
     def send_step_marker(self) -> None:

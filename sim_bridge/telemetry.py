@@ -9,7 +9,8 @@ What the emulated autopilot reports is one of
   state ``latency + U(0, jitter)`` seconds before the message is sent (a plant-step history is kept for that),
   stamped with that sample time, and carries the preset's white noise; the accelerometer also carries the
   preset's constant per-axis bias. The message RATES are the MAVLink stream intervals (flavour defaults or
-  SET_MESSAGE_INTERVAL), not the preset's rates. All randomness comes from one seeded generator.
+  SET_MESSAGE_INTERVAL), not the preset's rates. All randomness comes from one seeded generator (re-seeded with
+  a deterministic child of its seed when lockstep streaming starts: :meth:`TelemetrySource.rephase`).
 
 Every model-frame quantity is converted to MAVLink's NED / FRD with ``estimators.frames`` only.
 
@@ -140,13 +141,21 @@ class TelemetrySource:
         #: True when :meth:`record` must be called after every plant step (a preset with latency)
         self.needs_history = self.modelled and max_delay > 0.0
         self.step_us = step_us
-        self._hist: deque[tuple[int, tuple[float, ...], tuple[float, ...]]] = deque(
+        self._hist: deque[tuple[int, tuple[float, ...], tuple[float, ...], bool]] = deque(
             maxlen=int(max_delay * 1e6 / step_us) + 3)
         self._last_target = [0, 0, 0, 0]
+        self._seed_seq = getattr(self.srng.bit_generator, "seed_seq", None)
 
-    def record(self, t_us: int, x: Sequence[float], u: Sequence[float]) -> None:
+    def rephase(self) -> None:
+        """Lockstep streaming (re)starts: continue with a fresh generator, the next child of the sensor generator's
+        seed sequence, so that the noise from here on does not depend on how many snapshots the free-running
+        clock took before (a wall-clock matter). The bias is kept."""
+        if self.modelled and self._seed_seq is not None:
+            self.srng = np.random.default_rng(self._seed_seq.spawn(1)[0])
+
+    def record(self, t_us: int, x: Sequence[float], u: Sequence[float], on_ground: bool = False) -> None:
         """Remember the plant state and input at ``t_us`` (called after every plant step when latency is modelled)."""
-        self._hist.append((t_us, tuple(x), tuple(u)))
+        self._hist.append((t_us, tuple(x), tuple(u), on_ground))
 
     def _latlon(self, n: float, e: float, d: float) -> tuple[int, int, int, int]:
         lat = self.home.lat + math.degrees(n / EARTH_RADIUS)
@@ -154,15 +163,14 @@ class TelemetrySource:
         return (round(lat * 1e7), round(lon * 1e7), round((self.home.alt - d) * 1000.0),
                 round(-d * 1000.0))
 
-    def snapshot(self, t_us: int, x: Sequence[float], u: Sequence[float]) -> Snapshot:
-        """Telemetry values at simulation time ``t_us`` (µs) for state ``x`` and input ``u`` (model frame)."""
+    def snapshot(self, t_us: int, x: Sequence[float], u: Sequence[float], on_ground: bool = False) -> Snapshot:
+        """Telemetry values at simulation time ``t_us`` (µs) for state ``x`` and input ``u`` (model frame);
+        ``on_ground``: the vehicle rests on the ground (held at rest: the accelerometer reads 1 g up)."""
         if self.modelled:
-            return self._sensed(t_us, x, u)
+            return self._sensed(t_us, x, u, on_ground)
         phi, theta, psi = x[6], x[7], x[8]
         wx, wy, wz = body_rates(phi, theta, x[9], x[10], x[11])
-        dx = derivative(0.0, x, u, self.p)
-        g = self.p.g
-        f_body = _rot_t_times(phi, theta, psi, (dx[3], dx[4], dx[5] + g))
+        f_body = _rot_t_times(phi, theta, psi, self._world_specific_force(x, u, on_ground))
         pos = model_to_ned_vector(x[0], x[1], x[2])
         vel = model_to_ned_vector(x[3], x[4], x[5])
         rn, re, rd = model_to_ned_vector(x[12], x[13], x[14])
@@ -184,8 +192,17 @@ class TelemetrySource:
                            math.atan2(rn, rd) + swing_noise[0], math.atan2(re, rd) + swing_noise[1],
                            math.atan2(math.hypot(rn, re), rd), (t_us, t_us, t_us, t_us))
 
-    def _sample(self, group: int, t_us: int, jitter_u: float, x: Sequence[float],
-                u: Sequence[float]) -> tuple[int, Sequence[float], Sequence[float]]:
+    def _world_specific_force(self, x: Sequence[float], u: Sequence[float],
+                              on_ground: bool) -> tuple[float, float, float]:
+        """Specific force ``xi'' + g e3`` in the world frame (m/s^2); the ground holds the vehicle at rest."""
+        g = self.p.g
+        if on_ground:
+            return (0.0, 0.0, g)
+        dx = derivative(0.0, x, u, self.p)
+        return (dx[3], dx[4], dx[5] + g)
+
+    def _sample(self, group: int, t_us: int, jitter_u: float, x: Sequence[float], u: Sequence[float],
+                on_ground: bool) -> tuple[int, Sequence[float], Sequence[float], bool]:
         """(sample time µs, state, input) of a sensor group: the newest recorded plant step at or before
         ``t_us - latency - jitter`` (never earlier than the group's previous sample)."""
         lat, jit = self._delay[group]
@@ -193,40 +210,40 @@ class TelemetrySource:
         target = max(target, self._last_target[group])
         self._last_target[group] = target
         if target >= t_us or not self._hist:
-            return t_us, x, u
+            return t_us, x, u, on_ground
         hist = self._hist
         for entry in reversed(hist):
             if entry[0] <= target:
                 return entry
         return hist[0]
 
-    def _sensed(self, t_us: int, x: Sequence[float], u: Sequence[float]) -> Snapshot:
+    def _sensed(self, t_us: int, x: Sequence[float], u: Sequence[float], on_ground: bool) -> Snapshot:
         """The snapshot with the preset's latency, noise and bias (module docstring)."""
         pr = self.preset
         z = self.srng.standard_normal(20).tolist()
         jit = self.srng.random(4).tolist()
         # position + velocity
-        tp, xp, _ = self._sample(0, t_us, jit[0], x, u)
+        tp, xp, _, _ = self._sample(0, t_us, jit[0], x, u, on_ground)
         sxy, sz, svxy, svz = pr.position.noise
         pos = model_to_ned_vector(xp[0] + sxy * z[0], xp[1] + sxy * z[1], xp[2] + sz * z[2])
         vel = model_to_ned_vector(xp[3] + svxy * z[3], xp[4] + svxy * z[4], xp[5] + svz * z[5])
         # attitude + body rates
-        ta, xa, _ = self._sample(1, t_us, jit[1], x, u)
+        ta, xa, _, _ = self._sample(1, t_us, jit[1], x, u, on_ground)
         sa, sy, sr = pr.attitude.noise
         euler = (xa[6] + sa * z[6], xa[7] + sa * z[7], wrap_angle(xa[8] + sy * z[8]))
         w = body_rates(xa[6], xa[7], xa[9], xa[10], xa[11])
         rates = model_body_to_frd(w[0] + sr * z[9], w[1] + sr * z[10], w[2] + sr * z[11])
         # accelerometer (bias + noise) + gyro
-        ti, xi, ui = self._sample(2, t_us, jit[2], x, u)
+        ti, xi, ui, gi = self._sample(2, t_us, jit[2], x, u, on_ground)
         sacc, sg = pr.imu.noise
-        acc_w = derivative(0.0, xi, ui, self.p)
-        f = specific_force_body(xi, acc_w[3:6], self.p.g)
+        fw = self._world_specific_force(xi, ui, gi)
+        f = specific_force_body(xi, (fw[0], fw[1], fw[2] - self.p.g), self.p.g)
         b = self.accel_bias
         acc = model_body_to_frd(f[0] + b[0] + sacc * z[12], f[1] + b[1] + sacc * z[13], f[2] + b[2] + sacc * z[14])
         wi = body_rates(xi[6], xi[7], xi[9], xi[10], xi[11])
         gyro = model_body_to_frd(wi[0] + sg * z[15], wi[1] + sg * z[16], wi[2] + sg * z[17])
         # cable angle
-        tl, xl, _ = self._sample(3, t_us, jit[3], x, u)
+        tl, xl, _, _ = self._sample(3, t_us, jit[3], x, u, on_ground)
         sl = pr.load.noise[0]
         rn, re, rd = model_to_ned_vector(xl[12], xl[13], xl[14])
         sn = math.atan2(rn, rd) + sl * z[18]

@@ -231,7 +231,9 @@ def fly_lockstep_hold(emu: Emu, seconds: float, vehicle: Vehicle, altitude: floa
 
     Returns wall time of the lockstep part, final position (NED) and the number of handshakes; with ``collect``
     (message names), also ``messages``: name -> [(time of the step marker that followed it ms, message)] for
-    every such message of the autopilot from the offboard entry on, and those streams run at the control rate.
+    every such message of the autopilot from the offboard entry on, and those streams run at the control rate;
+    ``start_ms``: the simulation time of the offboard entry (ms; it depends on how long the emulator free-ran
+    before the first setpoint, a wall-clock matter).
     """
     emu.wait_heartbeat()
     emu.wait_ready()
@@ -290,4 +292,4 @@ def fly_lockstep_hold(emu: Emu, seconds: float, vehicle: Vehicle, altitude: floa
                 break
     wall = time.monotonic() - t0
     return {"wall_s": wall, "sim_s": (sim_ms - (start_ms or 0)) / 1000.0, "pos": pos, "handshakes": steps,
-            "max_alt_err_after_10s": max_err, "trace": trace, "messages": messages}
+            "max_alt_err_after_10s": max_err, "trace": trace, "messages": messages, "start_ms": start_ms}

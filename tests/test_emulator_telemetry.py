@@ -62,3 +62,16 @@ def test_noise_is_seeded_and_off_by_default() -> None:
     assert a.pos != truth.pos and a.pos == pytest.approx(truth.pos, abs=0.2)
     assert a.swing_n == pytest.approx(truth.swing_n, abs=0.05)
     assert all(math.isfinite(v) for v in (*a.pos, *a.vel, *a.acc, a.roll, a.pitch, a.yaw, a.swing_n))
+
+
+def test_accelerometer_reads_one_g_up_on_the_ground_and_zero_in_free_fall() -> None:
+    x = make_state((0.0, 0.0, 0.0))
+    idle = [0.0] * 13  # motors off: in the air this is free fall
+    for sensors in ("ideal", "px4-typical"):
+        tel = TelemetrySource(P, HOME, sensors=sensors, sensor_rng=np.random.default_rng(2))
+        bias = tel.accel_bias
+        ground = np.mean([tel.snapshot(1000 * k, x, idle, on_ground=True).acc for k in range(400)], axis=0)
+        falling = np.mean([tel.snapshot(1000 * k, x, idle).acc for k in range(400)], axis=0)
+        tol = 1e-12 if sensors == "ideal" else 0.05
+        assert ground == pytest.approx((bias[0], -bias[1], -P.g - bias[2]), abs=tol)  # FLU bias -> FRD
+        assert falling == pytest.approx((bias[0], -bias[1], -bias[2]), abs=tol)
