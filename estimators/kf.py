@@ -55,7 +55,7 @@ from estimators.cable import cable_from_planar
 from estimators.control_state import ControlState
 from estimators.flatness import flat_chain, flat_constants, planar_state, world_tilt
 from estimators.frames import wrap_angle
-from estimators.linear_block import LinearBlock, predict_cov, update_one, update_pair, update_row
+from estimators.linear_block import LinearBlock, update_one, update_pair, update_row
 from estimators.measurements import Attitude, Imu, LoadAngle, Measurement, PositionVelocity
 from estimators.vehicle import Vehicle
 
@@ -65,7 +65,6 @@ _N_INPUTS = 6  # x axis: n'' and the nonlinear remainder of a''; the same for y;
 
 #: the in-place updates of :meth:`KalmanEstimator._update` by kind: adjacent pair, row, one state
 _FAST_UPDATES = (update_pair, update_row, update_one)
-_predict_cov = predict_cov
 dot = np.dot
 
 STATE_NAMES: tuple[str, ...] = (
@@ -221,7 +220,9 @@ class KalmanEstimator:
         zx = [guess.z, guess.z_rate, 0.0, 0.0]  # the height block is plain floats: mean, upper triangle of P
         zp = [tn.prior_z**2, 0.0, 0.0, 0.0, tn.prior_z_rate**2, 0.0, 0.0, tn.prior_dz**2, 0.0, tn.prior_bias**2]
         # delayed state per block: [time, means (batch, n), shared covariance (n, n)]
-        self._core = [[float(t), hx, hp], [float(t), yx, yp], [float(t), zx, zp]]
+        # (the horizontal block lives in one array [P; x] (10, 8), see _advance_horizontal)
+        self._aug = aug = np.concatenate((hp, hx))
+        self._core = [[float(t), aug[8:], aug[:8]], [float(t), yx, yp], [float(t), zx, zp]]
         # output: the 22 means in STATE_NAMES order
         self._out = out = np.concatenate((hx.ravel(), yx, zx))
         self._out_view_h = out[0:16].reshape(2, 8)
@@ -394,22 +395,7 @@ class KalmanEstimator:
         elif bi == 2:
             self._advance_height(core, t0, t, j)
         else:
-            blk = self._hb
-            core[2] = _predict_cov(blk, core[2], t - t0)
-            x = core[1]
-            ci = 1
-            tc = t0
-            while True:
-                end = cmds[j + 1][0] if j + 1 < ncmd and cmds[j + 1][0] < t else t
-                if end > tc:
-                    d = blk.discrete(end - tc)
-                    x = dot(x, d.phi_t)
-                    x += dot(cmds[j][1][ci], d.gamma_t)
-                    tc = end
-                if end >= t:
-                    break
-                j += 1
-            core[1] = x
+            self._advance_horizontal(core, t0, t, j)
         core[0] = t
         # forget the commands no block needs any more
         c = self._core
@@ -419,6 +405,40 @@ class KalmanEstimator:
             k += 1
         if k:
             del cmds[:k]
+
+    def _advance_horizontal(self, core: list, t0: float, t: float, j: int) -> None:
+        """:meth:`_advance_core` for the horizontal block, stored as one array ``[P; x]`` (10, 8) whose views
+        are ``core[2]`` (P) and ``core[1]`` (x): with one command over the step, ``[P; x] Phi^T`` gives both
+        ``P Phi^T`` and the mean's ``x Phi^T`` in one product."""
+        blk = self._hb
+        h = t - t0
+        d = blk.discrete(h)
+        cmds = self._cmds
+        ncmd = len(cmds)
+        p, x = core[2], core[1]
+        if j + 1 >= ncmd or cmds[j + 1][0] >= t:  # one command in force over the whole step
+            b = dot(self._aug, d.phi_t)
+            dot(d.phi, b[:8], out=p)
+            p += d.q
+            np.add(b[8:], dot(cmds[j][1][1], d.gamma_t), out=x)
+        else:
+            dot(d.phi, dot(p, d.phi_t), out=p)
+            p += d.q
+            tc = t0
+            while True:
+                end = cmds[j + 1][0] if j + 1 < ncmd and cmds[j + 1][0] < t else t
+                if end > tc:
+                    d = blk.discrete(end - tc)
+                    xn = dot(x, d.phi_t)
+                    xn += dot(cmds[j][1][1], d.gamma_t)
+                    x[...] = xn
+                    tc = end
+                if end >= t:
+                    break
+                j += 1
+        blk._n_predict += 1
+        if blk._n_predict % 16 == 0:  # the updates keep P symmetric up to rounding; re-symmetrize now and then
+            p[...] = 0.5 * (p + p.T)
 
     def _heading_model(self, h: float) -> tuple[float, ...]:
         """The heading block's discrete model for a step ``h`` as plain floats (phi00, phi01, phi10, phi11,
@@ -678,13 +698,13 @@ class KalmanEstimator:
     def _update(self, name: str, kind: int, arg: object, z: tuple[float, ...], r: object, dof: int) -> bool:
         """One gated update of the horizontal block (``kind``: 0 = two adjacent states (arg = first index),
         1 = a measurement row (arg = the row), 2 = one state (arg = its index)); returns False when gated."""
-        core = self._core[0]
         fn = _FAST_UPDATES[kind]
-        dx = fn(core[1], core[2], arg, z, r, self._gate[dof])
+        aug = self._aug
+        dx = fn(aug, arg, z, r, self._gate[dof])
         if dx is None:
             if not self._gated(name):
                 return False
-            dx = fn(core[1], core[2], arg, z, r, math.inf)
+            dx = fn(aug, arg, z, r, math.inf)
             if dx is None:
                 return False
         self._gated_run[name] = 0

@@ -165,33 +165,25 @@ class LinearBlock:
         return dx
 
 
-# Allocation-lean versions of the operations above, used by the filter's hot path ---------------------------------
-# Same arithmetic (to rounding) as the methods of LinearBlock, with the 2 x 2 algebra in plain floats and
-# np.dot (several times cheaper than ``@`` on tiny arrays) for the rest.
+# Allocation-lean versions of the updates above, used by the filter's hot path -----------------------------------
+# Same arithmetic (to rounding) as the methods of LinearBlock, on one array ``aug = [P; x]`` (n + batch, n)
+# holding the covariance and the channels' means, so that one product serves both; the 2 x 2 algebra is done in
+# plain floats and np.dot (several times cheaper than ``@`` on tiny arrays) does the rest. Each returns the
+# state correction (batch, n), or None when gated (then nothing changes).
 _dot = np.dot
 _outer = np.multiply.outer
 
 
-def predict_cov(blk: LinearBlock, p: np.ndarray, h: float) -> np.ndarray:
-    """:meth:`LinearBlock.predict_cov` (shares its re-symmetrization counter)."""
-    d = blk.discrete(h)
-    p = _dot(_dot(d.phi, p), d.phi_t)
-    p += d.q
-    blk._n_predict += 1
-    if blk._n_predict % 16 == 0:
-        p = 0.5 * (p + p.T)
-    return p
-
-
 def update_pair(
-    x: np.ndarray, p: np.ndarray, i: int, z: tuple[float, ...], r: tuple[float, float], gate: float
+    aug: np.ndarray, i: int, z: tuple[float, ...], r: tuple[float, float], gate: float
 ) -> np.ndarray | None:
     """:meth:`LinearBlock.update_states` for the adjacent pair of states ``(i, i + 1)``.
 
-    Uses rows ``i, i + 1`` of P where the original uses its columns (P is symmetric): the gain, the state
-    correction and the covariance reduction come from one product ``[S^-1; y S^-1] P[i:i+2]``.
+    Uses rows ``i, i + 1`` of P where the original uses its columns (P is symmetric): the gain and the state
+    corrections come from one product ``[S^-1; y S^-1] P[i:i+2]``.
     """
-    (s11, s12), (_, s22) = p[i:i + 2, i:i + 2].tolist()
+    n = aug.shape[1]
+    (s11, s12), (_, s22) = aug[i:i + 2, i:i + 2].tolist()
     s11 += r[0]
     s22 += r[1]
     det = s11 * s22 - s12 * s12
@@ -200,57 +192,60 @@ def update_pair(
     a, b, d = s22 / det, -s12 / det, s11 / det
     rows = [(a, b), (b, d)]
     nis = 0.0
-    for c, (x0, x1) in enumerate(x[:, i:i + 2].tolist()):
+    for c, (x0, x1) in enumerate(aug[n:, i:i + 2].tolist()):
         y0, y1 = z[2 * c] - x0, z[2 * c + 1] - x1
         ys0, ys1 = y0 * a + y1 * b, y0 * b + y1 * d
         nis += ys0 * y0 + ys1 * y1
         rows.append((ys0, ys1))
     if not nis <= gate:
         return None
-    pr = p[i:i + 2]  # a view: the products are formed before p is written
+    pr = aug[i:i + 2]  # a view: the products are formed before aug is written
     kd = _dot(rows, pr)  # rows 0-1: S^-1 P[i:i+2] (the gain, transposed); then the corrections
     dx = kd[2:]
-    p -= _dot(pr.T, kd[:2])
-    x += dx
+    aug[:n] -= _dot(pr.T, kd[:2])
+    aug[n:] += dx
     return dx
 
 
-def update_row(
-    x: np.ndarray, p: np.ndarray, h: np.ndarray, z: tuple[float, ...], r: float, gate: float
-) -> np.ndarray | None:
+def _rank1(aug: np.ndarray, v: np.ndarray, y: list[float], s: float) -> np.ndarray:
+    """``P -= (P h)(P h)^T / s`` and ``x_c += y_c (P h) / s``, from ``v = aug h`` whose tail (the channels'
+    ``h . x``) is overwritten with ``-y``; returns the corrections."""
+    n = aug.shape[1]
+    for c, yc in enumerate(y):
+        v[n + c] = -yc
+    kd = _outer(v, v[:n])
+    kd *= 1.0 / s
+    aug -= kd
+    return -kd[n:]
+
+
+def update_row(aug: np.ndarray, h: np.ndarray, z: tuple[float, ...], r: float, gate: float) -> np.ndarray | None:
     """:meth:`LinearBlock.update_row`."""
-    ph = _dot(p, h)
-    s = float(_dot(ph, h)) + r
-    y = [zc - xc for zc, xc in zip(z, _dot(x, h).tolist())]
+    n = aug.shape[1]
+    v = _dot(aug, h)  # P h, then the channels' h . x
+    vl = v.tolist()
+    s = r
+    for a, b in zip(vl, h.tolist()):
+        s += a * b
+    y = [zc - xc for zc, xc in zip(z, vl[n:])]
     yy = 0.0
-    for v in y:
-        yy += v * v
+    for e in y:
+        yy += e * e
     if not yy <= gate * s:
         return None
-    inv_s = 1.0 / s
-    kd = _outer([*ph.tolist(), *y], ph)  # rows 0-7: P h h^T P; then y_c (P h)
-    kd *= inv_s
-    dx = kd[-len(y):]
-    p -= kd[:-len(y)]
-    x += dx
-    return dx
+    return _rank1(aug, v, y, s)
 
 
-def update_one(
-    x: np.ndarray, p: np.ndarray, i: int, z: tuple[float, ...], r: float, gate: float
-) -> np.ndarray | None:
+def update_one(aug: np.ndarray, i: int, z: tuple[float, ...], r: float, gate: float) -> np.ndarray | None:
     """:meth:`LinearBlock.update_state`."""
-    s = float(p[i, i]) + r
-    y = [zc - xc for zc, xc in zip(z, x[:, i].tolist())]
+    n = aug.shape[1]
+    v = aug[:, i].copy()  # P[:, i], then the channels' x_i
+    vl = v.tolist()
+    s = vl[i] + r
+    y = [zc - xc for zc, xc in zip(z, vl[n:])]
     yy = 0.0
-    for v in y:
-        yy += v * v
+    for e in y:
+        yy += e * e
     if not (s > 0.0 and yy <= gate * s):
         return None
-    ph = p[:, i]
-    kd = _outer([*ph.tolist(), *y], ph)
-    kd *= 1.0 / s
-    dx = kd[-len(y):]
-    p -= kd[:-len(y)]
-    x += dx
-    return dx
+    return _rank1(aug, v, y, s)
