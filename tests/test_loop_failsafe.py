@@ -172,7 +172,9 @@ def test_sigterm_in_flight_ends_in_hold_or_land(tmp_path: Path, action: str) -> 
         t_end = time.monotonic() + 40.0
         while emu.ap.mode.name != "OFFBOARD" and time.monotonic() < t_end and proc.poll() is None:
             time.sleep(0.05)
-        assert emu.ap.mode.name == "OFFBOARD"
+        if emu.ap.mode.name != "OFFBOARD":
+            proc.kill()
+            pytest.fail(f"never reached OFFBOARD (mode {emu.ap.mode.name}): {proc.communicate()[1][-1500:]}")
         time.sleep(1.0)  # well into the controlled flight
         assert proc.poll() is None
         proc.send_signal(signal.SIGTERM)
