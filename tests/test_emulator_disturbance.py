@@ -20,8 +20,8 @@ SEED = 5
 
 
 def test_plant_inputs_are_random_disturbance_from_the_offboard_entry() -> None:
-    with InProcessEmu("--lockstep", "--est-ready", "0.2", "--disturbance", "paper", "--disturbance-start", "1.0",
-                      "--seed", str(SEED)) as e:
+    with InProcessEmu("--lockstep", "--lockstep-grace", "1", "--est-ready", "0.2", "--disturbance", "paper",
+                      "--disturbance-start", "1.0", "--seed", str(SEED)) as e:
         e.emu.input_log = []
         fly_lockstep_hold(e, 4.0, V)
         summary = e.stop()
@@ -48,7 +48,7 @@ def test_plant_inputs_are_random_disturbance_from_the_offboard_entry() -> None:
 
 
 def _trace(*extra: str) -> tuple[list[tuple[float, float, float]], dict]:
-    with Emu("--lockstep", "--est-ready", "0.2", "--seed", str(SEED), *extra) as e:
+    with Emu("--lockstep", "--lockstep-grace", "1", "--est-ready", "0.2", "--seed", str(SEED), *extra) as e:
         r = fly_lockstep_hold(e, 5.0, V)
         summary = e.stop()
     return r["trace"], summary

@@ -25,7 +25,8 @@ SEED = 3  # its accelerometer bias is large enough (> 0.1 m/s^2 on x and y) to b
 
 
 def _flight(sensors: str, seed: int, seconds: float) -> tuple[dict[str, list[tuple[int, Any]]], dict[str, Any]]:
-    with Emu("--lockstep", "--est-ready", "0.2", "--sensors", sensors, "--seed", str(seed)) as e:
+    with Emu("--lockstep", "--lockstep-grace", "1", "--est-ready", "0.2", "--sensors", sensors,
+             "--seed", str(seed)) as e:
         r = fly_lockstep_hold(e, seconds, V, collect=STREAMS)
         summary = e.stop()
     summary["start_ms"] = r["start_ms"]
