@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -73,20 +75,53 @@ def time_ticks(ticks: list, start: ControlState, rate: float, load_sensor: bool)
     return out
 
 
+def time_ticks_ab(ticks: list, start: ControlState, rate: float, load_sensor: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Seconds per tick of this filter and of the frozen original, run alternately on the same ticks."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    from kf_reference import ReferenceKalmanEstimator
+
+    ests = (make_estimator("kf", Vehicle(), load_sensor=load_sensor, rate_hz=rate),
+            ReferenceKalmanEstimator(Vehicle(), load_sensor=load_sensor, rate_hz=rate))
+    for est in ests:
+        est.initialize(0.0, start)
+    out = np.empty((2, len(ticks)))
+    clock = time.perf_counter
+    for i, (t, ms, thrust, tau) in enumerate(ticks):
+        for k in (i % 2, 1 - i % 2):  # alternate which runs first
+            est = ests[k]
+            t0 = clock()
+            for m in ms:
+                est.push(m)
+            est.estimate(t)
+            est.push_command(t, thrust, tau)
+            out[k, i] = clock() - t0
+    return out[0], out[1]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rate", type=float, default=200.0, help="control rate, Hz (default 200)")
     ap.add_argument("--seconds", type=float, default=20.0, help="simulated seconds (default 20)")
     ap.add_argument("--sensors", default="px4-typical", help="sensor preset (default px4-typical)")
+    ap.add_argument("--reference", action="store_true", help="also time the original filter, interleaved")
     args = ap.parse_args(argv)
     ticks, start = record(args.rate, args.seconds, args.sensors)
     n_meas = sum(len(t[1]) for t in ticks)
     print(f"estimator cost per control tick: {len(ticks)} ticks at {args.rate:g} Hz, sensors {args.sensors}, "
           f"{n_meas / len(ticks):.2f} measurements per tick")
     for load_sensor in (True, False):
+        mode = "with cable-angle sensor" if load_sensor else "sensorless             "
+        if args.reference:
+            time_ticks_ab(ticks[: len(ticks) // 4], start, args.rate, load_sensor)  # warm-up
+            new, ref = (a * 1e6 for a in time_ticks_ab(ticks, start, args.rate, load_sensor))
+            for label, dt in (("this filter", new), ("original   ", ref)):
+                print(f"  {mode} {label}: median {np.median(dt):6.1f} us   p99 {np.percentile(dt, 99):6.1f} us   "
+                      f"mean {dt.mean():6.1f} us")
+            print(f"  {mode} speed-up: median {np.median(ref) / np.median(new):.2f}x, "
+                  f"p99 {np.percentile(ref, 99) / np.percentile(new, 99):.2f}x, mean {ref.mean() / new.mean():.2f}x")
+            continue
         time_ticks(ticks[: len(ticks) // 4], start, args.rate, load_sensor)  # warm-up (caches, allocator)
         dt = time_ticks(ticks, start, args.rate, load_sensor) * 1e6
-        mode = "with cable-angle sensor" if load_sensor else "sensorless             "
         print(f"  {mode}: median {np.median(dt):6.1f} us   p99 {np.percentile(dt, 99):6.1f} us   "
               f"max {dt.max():7.1f} us")
     return 0

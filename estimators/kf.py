@@ -200,6 +200,7 @@ class KalmanEstimator:
         self._ycache: dict[int, tuple[float, ...]] = {}
         self._zcache: dict[int, tuple[float, ...]] = {}
         self._gate_reopen = tn.gate_reopen
+        self._buf = np.empty(8)  # scratch of update_pair
         self._initialized = False
 
     # --------------------------------------------------------------------------------------------------------
@@ -241,8 +242,8 @@ class KalmanEstimator:
         """Queue a measurement (any order). Non-finite, late (sampled before the fusion horizon) or unusable
         records are counted and dropped; the rest are fused when the horizon passes their time."""
         st = self._stats
-        try:
-            finite = all(math.isfinite(v) for v in m)
+        try:  # a finite sum proves every field finite; otherwise look (the sum may overflow)
+            finite = math.isfinite(sum(m)) or all(math.isfinite(v) for v in m)
         except TypeError:
             finite = False
         if not finite:
@@ -292,18 +293,19 @@ class KalmanEstimator:
         e1 = -ku * (n1 - nr * r1) - rd2 * r1
         e2 = -ku * (n2 - nr * r2) - rd2 * r2
         e3 = -ku * (n3 - nr * r3) - rd2 * r3
-        w = np.array((
+        wl = [
             cp * ttheta - sp * tphi,
             _planar_accel(r1, r3, d1, d3, e1, e3) + self._w2 * (ay + nx),
             sp * ttheta + cp * tphi,
             _planar_accel(r2, r3, d2, d3, e2, e3) + self._w2 * (ax + ny),
             torque[2] * iy,
             (thrust * n3 + tension * r3) / M - g,
-        ))
-        if not all(math.isfinite(v) for v in w.tolist()):
+        ]
+        if not all(math.isfinite(v) for v in wl):
             self._stats["commands_rejected"] += 1
             return
-        w = self._command_views(w)
+        w_all = np.array(wl)
+        w = (w_all, w_all[0:4].reshape(2, 2), wl[4], wl[5])
         cmds = self._cmds
         if cmds[-1][0] >= t:
             cmds[-1] = (cmds[-1][0], w)
@@ -700,11 +702,11 @@ class KalmanEstimator:
         1 = a measurement row (arg = the row), 2 = one state (arg = its index)); returns False when gated."""
         fn = _FAST_UPDATES[kind]
         aug = self._aug
-        dx = fn(aug, arg, z, r, self._gate[dof])
+        dx = fn(aug, arg, z, r, self._gate[dof], self._buf)
         if dx is None:
             if not self._gated(name):
                 return False
-            dx = fn(aug, arg, z, r, math.inf)
+            dx = fn(aug, arg, z, r, math.inf, self._buf)
             if dx is None:
                 return False
         self._gated_run[name] = 0

@@ -175,12 +175,13 @@ _outer = np.multiply.outer
 
 
 def update_pair(
-    aug: np.ndarray, i: int, z: tuple[float, ...], r: tuple[float, float], gate: float
+    aug: np.ndarray, i: int, z: tuple[float, ...], r: tuple[float, float], gate: float, buf: np.ndarray
 ) -> np.ndarray | None:
     """:meth:`LinearBlock.update_states` for the adjacent pair of states ``(i, i + 1)``.
 
     Uses rows ``i, i + 1`` of P where the original uses its columns (P is symmetric): the gain and the state
-    corrections come from one product ``[S^-1; y S^-1] P[i:i+2]``.
+    corrections come from one product ``[S^-1; y S^-1] P[i:i+2]``. buf: scratch array of ``2 (2 + batch)``
+    floats.
     """
     n = aug.shape[1]
     (s11, s12), (_, s22) = aug[i:i + 2, i:i + 2].tolist()
@@ -190,17 +191,19 @@ def update_pair(
     if not det > 0.0:
         return None
     a, b, d = s22 / det, -s12 / det, s11 / det
-    rows = [(a, b), (b, d)]
+    rows = [a, b, b, d]
     nis = 0.0
     for c, (x0, x1) in enumerate(aug[n:, i:i + 2].tolist()):
         y0, y1 = z[2 * c] - x0, z[2 * c + 1] - x1
         ys0, ys1 = y0 * a + y1 * b, y0 * b + y1 * d
         nis += ys0 * y0 + ys1 * y1
-        rows.append((ys0, ys1))
+        rows.append(ys0)
+        rows.append(ys1)
     if not nis <= gate:
         return None
+    buf[:] = rows
     pr = aug[i:i + 2]  # a view: the products are formed before aug is written
-    kd = _dot(rows, pr)  # rows 0-1: S^-1 P[i:i+2] (the gain, transposed); then the corrections
+    kd = _dot(buf.reshape(-1, 2), pr)  # rows 0-1: S^-1 P[i:i+2] (the gain, transposed); then the corrections
     dx = kd[2:]
     aug[:n] -= _dot(pr.T, kd[:2])
     aug[n:] += dx
@@ -219,8 +222,10 @@ def _rank1(aug: np.ndarray, v: np.ndarray, y: list[float], s: float) -> np.ndarr
     return -kd[n:]
 
 
-def update_row(aug: np.ndarray, h: np.ndarray, z: tuple[float, ...], r: float, gate: float) -> np.ndarray | None:
-    """:meth:`LinearBlock.update_row`."""
+def update_row(
+    aug: np.ndarray, h: np.ndarray, z: tuple[float, ...], r: float, gate: float, buf: np.ndarray
+) -> np.ndarray | None:
+    """:meth:`LinearBlock.update_row` (buf: unused, for a common signature)."""
     n = aug.shape[1]
     v = _dot(aug, h)  # P h, then the channels' h . x
     vl = v.tolist()
@@ -236,8 +241,10 @@ def update_row(aug: np.ndarray, h: np.ndarray, z: tuple[float, ...], r: float, g
     return _rank1(aug, v, y, s)
 
 
-def update_one(aug: np.ndarray, i: int, z: tuple[float, ...], r: float, gate: float) -> np.ndarray | None:
-    """:meth:`LinearBlock.update_state`."""
+def update_one(
+    aug: np.ndarray, i: int, z: tuple[float, ...], r: float, gate: float, buf: np.ndarray
+) -> np.ndarray | None:
+    """:meth:`LinearBlock.update_state` (buf: unused, for a common signature)."""
     n = aug.shape[1]
     v = aug[:, i].copy()  # P[:, i], then the channels' x_i
     vl = v.tolist()
