@@ -665,13 +665,13 @@ class KalmanEstimator:
             mdl = self._out_cache[key] = (phi_t, gamma_t)
         return mdl
 
-    def _correct_output(self, dx: np.ndarray) -> None:
-        """Carry a correction ``dx`` (2, 8) of the delayed horizontal state to the output."""
+    def _correct_output(self, ndx: np.ndarray) -> None:
+        """Carry a correction ``-ndx`` ((2, 8), given negated) of the delayed horizontal state to the output."""
         h = self._t_out - self._core[0][0]
         if h > 0.0:
-            self._out_view_h += dot(dx, self._hb.discrete(h).phi_t)
+            self._out_view_h -= dot(ndx, self._hb.discrete(h).phi_t)
         else:
-            self._out_view_h += dx
+            self._out_view_h -= ndx
 
     def _output_covariances(self) -> list[np.ndarray]:
         res = []
@@ -702,15 +702,15 @@ class KalmanEstimator:
         1 = a measurement row (arg = the row), 2 = one state (arg = its index)); returns False when gated."""
         fn = _FAST_UPDATES[kind]
         aug = self._aug
-        dx = fn(aug, arg, z, r, self._gate[dof], self._buf)
-        if dx is None:
+        ndx = fn(aug, arg, z, r, self._gate[dof], self._buf)
+        if ndx is None:
             if not self._gated(name):
                 return False
-            dx = fn(aug, arg, z, r, math.inf, self._buf)
-            if dx is None:
+            ndx = fn(aug, arg, z, r, math.inf, self._buf)
+            if ndx is None:
                 return False
         self._gated_run[name] = 0
-        self._correct_output(dx)
+        self._correct_output(ndx)
         return True
 
     def _update_heading(self, z0: float, z1: float) -> bool:

@@ -169,7 +169,7 @@ class LinearBlock:
 # Same arithmetic (to rounding) as the methods of LinearBlock, on one array ``aug = [P; x]`` (n + batch, n)
 # holding the covariance and the channels' means, so that one product serves both; the 2 x 2 algebra is done in
 # plain floats and np.dot (several times cheaper than ``@`` on tiny arrays) does the rest. Each returns the
-# state correction (batch, n), or None when gated (then nothing changes).
+# NEGATED state correction (batch, n) (one negation fewer), or None when gated (then nothing changes).
 _dot = np.dot
 _outer = np.multiply.outer
 
@@ -197,29 +197,29 @@ def update_pair(
         y0, y1 = z[2 * c] - x0, z[2 * c + 1] - x1
         ys0, ys1 = y0 * a + y1 * b, y0 * b + y1 * d
         nis += ys0 * y0 + ys1 * y1
-        rows.append(ys0)
-        rows.append(ys1)
+        rows.append(-ys0)
+        rows.append(-ys1)
     if not nis <= gate:
         return None
     buf[:] = rows
     pr = aug[i:i + 2]  # a view: the products are formed before aug is written
-    kd = _dot(buf.reshape(-1, 2), pr)  # rows 0-1: S^-1 P[i:i+2] (the gain, transposed); then the corrections
-    dx = kd[2:]
+    kd = _dot(buf.reshape(-1, 2), pr)  # rows 0-1: S^-1 P[i:i+2] (the gain, transposed); then -corrections
+    ndx = kd[2:]
     aug[:n] -= _dot(pr.T, kd[:2])
-    aug[n:] += dx
-    return dx
+    aug[n:] -= ndx
+    return ndx
 
 
 def _rank1(aug: np.ndarray, v: np.ndarray, y: list[float], s: float) -> np.ndarray:
     """``P -= (P h)(P h)^T / s`` and ``x_c += y_c (P h) / s``, from ``v = aug h`` whose tail (the channels'
-    ``h . x``) is overwritten with ``-y``; returns the corrections."""
+    ``h . x``) is overwritten with ``-y``; returns the negated corrections."""
     n = aug.shape[1]
     for c, yc in enumerate(y):
         v[n + c] = -yc
     kd = _outer(v, v[:n])
     kd *= 1.0 / s
     aug -= kd
-    return -kd[n:]
+    return kd[n:]
 
 
 def update_row(
