@@ -196,7 +196,7 @@ class KalmanEstimator:
             "gated_pos": 0, "gated_z": 0, "gated_tilt": 0, "gated_psi": 0, "gated_acc": 0, "gated_acc_z": 0,
             "gated_load": 0,
         }
-        self._out_cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._out_cache: dict[int, np.ndarray] = {}
         self._ycache: dict[int, tuple[float, ...]] = {}
         self._zcache: dict[int, tuple[float, ...]] = {}
         self._gate_reopen = tn.gate_reopen
@@ -220,12 +220,14 @@ class KalmanEstimator:
         yp = [tn.prior_psi**2, 0.0, 0.0, tn.prior_psi_rate**2]
         zx = [guess.z, guess.z_rate, 0.0, 0.0]  # the height block is plain floats: mean, upper triangle of P
         zp = [tn.prior_z**2, 0.0, 0.0, 0.0, tn.prior_z_rate**2, 0.0, 0.0, tn.prior_dz**2, 0.0, tn.prior_bias**2]
-        # delayed state per block: [time, means (batch, n), shared covariance (n, n)]
-        # (the horizontal block lives in one array [P; x] (10, 8), see _advance_horizontal)
+        # delayed state per block: [time, means, covariance]. Horizontal: views of one array [P; x] (10, 8) (see
+        # _advance_horizontal); heading: plain floats, mean [psi, psi'] and P row-major (4); height: plain
+        # floats, mean (4) and the upper triangle of P (10)
         self._aug = aug = np.concatenate((hp, hx))
         self._core = [[float(t), aug[8:], aug[:8]], [float(t), yx, yp], [float(t), zx, zp]]
-        # output: the 22 means in STATE_NAMES order
-        self._out = out = np.concatenate((hx.ravel(), yx, zx))
+        # output: the 22 means in STATE_NAMES order, followed by the 6 command inputs in force (see _advance_output)
+        self._outw = np.concatenate((hx.ravel(), yx, zx, np.zeros(_N_INPUTS)))
+        self._out = out = self._outw[:22]
         self._out_view_h = out[0:16].reshape(2, 8)
         self._t_out = float(t)
         self._pending: list[tuple[float, int, Measurement]] = []
@@ -301,7 +303,7 @@ class KalmanEstimator:
             torque[2] * iy,
             (thrust * n3 + tension * r3) / M - g,
         ]
-        if not all(math.isfinite(v) for v in wl):
+        if not (math.isfinite(sum(wl)) or all(math.isfinite(v) for v in wl)):
             self._stats["commands_rejected"] += 1
             return
         w_all = np.array(wl)
@@ -328,6 +330,7 @@ class KalmanEstimator:
         for bi in range(3):
             if horizon - self._core[bi][0] > 0.05:
                 self._advance_core(bi, horizon)
+        self._forget_commands()
         est = self._control_state()
         if not est.is_finite():
             self._stats["nonfinite_resets"] += 1
@@ -399,9 +402,13 @@ class KalmanEstimator:
         else:
             self._advance_horizontal(core, t0, t, j)
         core[0] = t
-        # forget the commands no block needs any more
+
+    def _forget_commands(self) -> None:
+        """Drop the commands no block needs any more (those replaced before every block's time)."""
         c = self._core
         tmin = min(c[0][0], c[1][0], c[2][0])
+        cmds = self._cmds
+        ncmd = len(cmds)
         k = 0
         while k + 1 < ncmd and cmds[k + 1][0] <= tmin:
             k += 1
@@ -624,33 +631,35 @@ class KalmanEstimator:
         return cmds[j][1][0]
 
     def _advance_output(self, t: float) -> None:
+        """Predict the output means to ``t`` with the commands in force: per command segment one product
+        ``[out, w] [Phi^T; Gamma^T]``."""
         cmds = self._cmds
         t0 = self._t_out
         j = len(cmds) - 1
         while j > 0 and cmds[j][0] > t0:
             j -= 1
         tc = t0
+        outw = self._outw
         out = self._out
         while True:
             end = cmds[j + 1][0] if j + 1 < len(cmds) and cmds[j + 1][0] < t else t
             if end > tc:
-                phi_t, gamma_t = self._output_model(end - tc)
-                new = dot(out, phi_t)
-                new += dot(cmds[j][1][0], gamma_t)
-                out[:] = new
+                outw[22:] = cmds[j][1][0]
+                out[:] = dot(outw, self._output_model(end - tc))
                 tc = end
             if end >= t:
                 break
             j += 1
         self._t_out = t
 
-    def _output_model(self, h: float) -> tuple[np.ndarray, np.ndarray]:
-        """Block-diagonal (Phi^T (22, 22), Gamma^T (6, 22)) of all 22 output means for a step ``h`` (cached)."""
+    def _output_model(self, h: float) -> np.ndarray:
+        """``[Phi^T; Gamma^T]`` (28, 22), block diagonal per block, of all 22 output means and the 6 command
+        inputs for a step ``h`` (cached)."""
         key = round(h * 1e7)
         mdl = self._out_cache.get(key)
         if mdl is None:
-            phi_t = np.zeros((22, 22))
-            gamma_t = np.zeros((_N_INPUTS, 22))
+            mdl = np.zeros((22 + _N_INPUTS, 22))
+            phi_t, gamma_t = mdl[:22], mdl[22:]
             dh, dy, dz = (blk.discrete(h) for blk in self._blocks)
             phi_t[0:8, 0:8] = dh.phi_t
             phi_t[8:16, 8:16] = dh.phi_t
@@ -662,7 +671,7 @@ class KalmanEstimator:
             gamma_t[5, 18:22] = dz.gamma_t[0]
             if len(self._out_cache) >= 4096:
                 self._out_cache.clear()
-            mdl = self._out_cache[key] = (phi_t, gamma_t)
+            self._out_cache[key] = mdl
         return mdl
 
     def _correct_output(self, ndx: np.ndarray) -> None:
