@@ -622,13 +622,13 @@ class KalmanEstimator:
         """(all 6 inputs, horizontal (2, 2), heading (float), height (float)): the inputs of each block."""
         return (w, w[0:4].reshape(2, 2), float(w[4]), float(w[5]))
 
-    def _active_command(self, t: float) -> np.ndarray:
-        """The command inputs in force at time ``t`` (s)."""
+    def _active_command(self, t: float) -> tuple:
+        """The command in force at time ``t`` (s), as the block inputs of :meth:`_command_views`."""
         cmds = self._cmds
         j = len(cmds) - 1
         while j > 0 and cmds[j][0] > t:
             j -= 1
-        return cmds[j][1][0]
+        return cmds[j][1]
 
     def _advance_output(self, t: float) -> None:
         """Predict the output means to ``t`` with the commands in force: per command segment one product
@@ -807,7 +807,7 @@ class KalmanEstimator:
             theta, phi = nx * cp + ny * sp, nx * sp - ny * cp
             ct = math.cos(theta)
             fz_world = -math.sin(theta) * m.ax + ct * math.sin(phi) * m.ay + ct * math.cos(phi) * m.az
-            w_z = float(self._active_command(self._core[2][0])[5])
+            w_z = self._active_command(self._core[2][0])[3]
             ok &= self._update_height_acc(fz_world - self._g - w_z)
         elif isinstance(m, LoadAngle):
             self._advance_core(0, t)
