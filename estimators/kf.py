@@ -355,18 +355,20 @@ class KalmanEstimator:
         time ``t`` against ``truth`` mapped into the filter's coordinates (:data:`NEES_DOF` degrees of freedom)."""
         if t > self._t_out:
             self.estimate(t)
-        ps = self._output_covariances()
+        hp, yp, zp = self._output_covariances_raw()
         out = self._out.tolist()
         e = np.array((
             *(a - b for a, b in zip(out[0:6], planar_state(self.k, truth.fx))),
             *(a - b for a, b in zip(out[8:14], planar_state(self.k, truth.fy))),
         )).reshape(2, 6)
-        hp = ps[0][:6, :6]
-        total = float(np.sum(e * np.linalg.solve(hp, e.T).T))
-        e = np.array((wrap_angle(out[16] - truth.psi), out[17] - truth.psi_rate))
-        total += float(e @ np.linalg.solve(ps[1], e))
-        e = np.array((out[18] - truth.z, out[19] - truth.z_rate))
-        total += float(e @ np.linalg.solve(ps[2][:2, :2], e))
+        total = float(np.sum(e * np.linalg.solve(hp[:6, :6], e.T).T))
+        # the two 2 x 2 blocks in closed form: e^T P^-1 e
+        e0, e1 = wrap_angle(out[16] - truth.psi), out[17] - truth.psi_rate
+        a, b, c, d = yp
+        total += (d * e0 * e0 - b * e0 * e1 - c * e0 * e1 + a * e1 * e1) / (a * d - b * c)
+        e0, e1 = out[18] - truth.z, out[19] - truth.z_rate
+        a, b, d = zp[0], zp[1], zp[4]
+        total += (d * e0 * e0 - 2.0 * b * e0 * e1 + a * e1 * e1) / (a * d - b * b)
         return total
 
     def stats(self) -> dict[str, int]:
@@ -464,10 +466,11 @@ class KalmanEstimator:
             mdl = self._ycache[key] = (f00, f01, f10, f11, g0, g1, q00, q01, q10, q11)
         return mdl
 
-    def _advance_heading(self, core: list, t0: float, t: float, j: int) -> None:
-        """:meth:`_advance_core` for the heading block, whose mean and covariance are plain floats."""
-        f00, f01, f10, f11, _, _, q00, q01, q10, q11 = self._heading_model(t - t0)
-        p00, p01, p10, p11 = core[2]
+    def _heading_cov(self, p: list[float], h: float) -> list[float]:
+        """The heading covariance (row-major floats) predicted by ``h`` s: ``Phi P Phi^T + Q`` (re-symmetrized
+        every 16th prediction of the block, like :meth:`LinearBlock.predict_cov`)."""
+        f00, f01, f10, f11, _, _, q00, q01, q10, q11 = self._heading_model(h)
+        p00, p01, p10, p11 = p
         a0, a1 = p00 * f00 + p01 * f01, p00 * f10 + p01 * f11  # (P Phi^T) row 0
         b0, b1 = p10 * f00 + p11 * f01, p10 * f10 + p11 * f11  # row 1
         p00, p01 = f00 * a0 + f01 * b0 + q00, f00 * a1 + f01 * b1 + q01
@@ -476,7 +479,11 @@ class KalmanEstimator:
         yb._n_predict += 1
         if yb._n_predict % 16 == 0:
             p01 = p10 = 0.5 * (p01 + p10)
-        core[2] = [p00, p01, p10, p11]
+        return [p00, p01, p10, p11]
+
+    def _advance_heading(self, core: list, t0: float, t: float, j: int) -> None:
+        """:meth:`_advance_core` for the heading block, whose mean and covariance are plain floats."""
+        core[2] = self._heading_cov(core[2], t - t0)
         x0, x1 = core[1]
         cmds = self._cmds
         ncmd = len(cmds)
@@ -516,17 +523,21 @@ class KalmanEstimator:
             self._zcache[key] = mdl
         return mdl
 
-    def _advance_height(self, core: list, t0: float, t: float, j: int) -> None:
-        """:meth:`_advance_core` for the height block (mean and covariance plain floats; the covariance is kept
-        as its upper triangle, row-major: P00 P01 P02 P03 P11 P12 P13 P22 P23 P33)."""
-        a, b, c, _, _, q00, q01, q02, q03, q11, q12, q13, q22, q23, q33 = self._height_model(t - t0)
-        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = core[2]
+    def _height_cov(self, p: list[float], h: float) -> list[float]:
+        """The height covariance (upper triangle, row-major floats) predicted by ``h`` s: ``Phi P Phi^T + Q``."""
+        a, b, c, _, _, q00, q01, q02, q03, q11, q12, q13, q22, q23, q33 = self._height_model(h)
+        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = p
         # M = Phi P (rows 0 and 1 change), then Phi M Phi^T's upper triangle
         m00, m01, m02, m03 = p00 + a * p01 + b * p02, p01 + a * p11 + b * p12, p02 + a * p12 + b * p22, \
             p03 + a * p13 + b * p23
         m11, m12, m13 = p11 + c * p12, p12 + c * p22, p13 + c * p23
-        core[2] = [m00 + a * m01 + b * m02 + q00, m01 + c * m02 + q01, m02 + q02, m03 + q03,
-                   m11 + c * m12 + q11, m12 + q12, m13 + q13, p22 + q22, p23 + q23, p33 + q33]
+        return [m00 + a * m01 + b * m02 + q00, m01 + c * m02 + q01, m02 + q02, m03 + q03,
+                m11 + c * m12 + q11, m12 + q12, m13 + q13, p22 + q22, p23 + q23, p33 + q33]
+
+    def _advance_height(self, core: list, t0: float, t: float, j: int) -> None:
+        """:meth:`_advance_core` for the height block (mean and covariance plain floats; the covariance is kept
+        as its upper triangle, row-major: P00 P01 P02 P03 P11 P12 P13 P22 P23 P33)."""
+        core[2] = self._height_cov(core[2], t - t0)
         x0, x1, x2, x3 = core[1]
         cmds = self._cmds
         ncmd = len(cmds)
@@ -682,18 +693,32 @@ class KalmanEstimator:
         else:
             self._out_view_h -= ndx
 
+    def _output_covariances_raw(self) -> tuple[np.ndarray, list[float], list[float]]:
+        """The blocks' covariances predicted to the output time, in their storage forms: horizontal (8, 8),
+        heading row-major floats (4), height upper-triangle floats (10)."""
+        c = self._core
+        t_out = self._t_out
+        hp = c[0][2]
+        h = t_out - c[0][0]
+        if h > 0.0:
+            blk = self._hb
+            d = blk.discrete(h)
+            hp = dot(dot(d.phi, hp), d.phi_t)
+            hp += d.q
+            blk._n_predict += 1
+            if blk._n_predict % 16 == 0:
+                hp = 0.5 * (hp + hp.T)
+        h = t_out - c[1][0]
+        yp = self._heading_cov(c[1][2], h) if h > 0.0 else c[1][2]
+        h = t_out - c[2][0]
+        zp = self._height_cov(c[2][2], h) if h > 0.0 else c[2][2]
+        return hp, yp, zp
+
     def _output_covariances(self) -> list[np.ndarray]:
-        res = []
-        for bi, blk in enumerate(self._blocks):
-            t0, _, p = self._core[bi]
-            if bi == 1:
-                p = np.array(p).reshape(2, 2)
-            elif bi == 2:
-                p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = p
-                p = np.array(((p00, p01, p02, p03), (p01, p11, p12, p13), (p02, p12, p22, p23), (p03, p13, p23, p33)))
-            h = self._t_out - t0
-            res.append(blk.predict_cov(p, h) if h > 0.0 else p)
-        return res
+        hp, yp, zp = self._output_covariances_raw()
+        p00, p01, p02, p03, p11, p12, p13, p22, p23, p33 = zp
+        return [hp.copy(), np.array(yp).reshape(2, 2),
+                np.array(((p00, p01, p02, p03), (p01, p11, p12, p13), (p02, p12, p22, p23), (p03, p13, p23, p33)))]
 
     def _gated(self, name: str) -> bool:
         """Count a gated update of stream ``name``; True when the gate must reopen (the stream has been
