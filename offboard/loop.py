@@ -40,6 +40,7 @@ exceeded a period.
 from __future__ import annotations
 
 import contextlib
+import gc
 import logging
 import math
 import select
@@ -552,10 +553,19 @@ class FlightLoop:
         last_marker = self.marker_t
         stats = self.stats
         t_v = t0
+        # no cyclic garbage collection during the flight: a full collection over the growing log costs
+        # milliseconds, a missed deadline; the loop's objects are acyclic and freed by reference counting
+        gc.collect()
+        gc.freeze()
+        gc_was_enabled = gc.isenabled()
+        gc.disable()
         try:
             self._fly_ticks(t0, t_v, last_marker, origin, memory, wall0)
         finally:
             stats.elapsed_s = time.monotonic() - wall0
+            if gc_was_enabled:
+                gc.enable()
+            gc.unfreeze()
 
     def _fly_ticks(self, t0: float, t_v: float, last_marker: float | None, origin: tuple[float, float],
                    memory: smc.ControllerMemory, wall0: float) -> None:
