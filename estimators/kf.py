@@ -269,7 +269,8 @@ class KalmanEstimator:
     def push_command(self, t: float, thrust: float, torque: tuple[float, float, float]) -> None:
         """The controller's command from time ``t`` (s): thrust (N) and body torques (N m, FLU), held until the
         next one. A command older than the last output time is applied from the output time on."""
-        if not (math.isfinite(t) and math.isfinite(thrust) and all(math.isfinite(v) for v in torque)):
+        if not (math.isfinite(t + thrust + sum(torque))  # a finite sum proves each finite (else look: overflow)
+                or (math.isfinite(t) and math.isfinite(thrust) and all(math.isfinite(v) for v in torque))):
             self._stats["commands_rejected"] += 1
             return
         t = max(float(t), self._t_out)
