@@ -428,22 +428,18 @@ class KalmanEstimator:
         cmds = self._cmds
         ncmd = len(cmds)
         p, x = core[2], core[1]
+        b = dot(self._aug, d.phi_t)  # [P Phi^T; x Phi^T]
+        dot(d.phi, b[:8], out=p)
+        p += d.q
         if j + 1 >= ncmd or cmds[j + 1][0] >= t:  # one command in force over the whole step
-            b = dot(self._aug, d.phi_t)
-            dot(d.phi, b[:8], out=p)
-            p += d.q
             np.add(b[8:], dot(cmds[j][1][1], d.gamma_t), out=x)
-        else:
-            dot(d.phi, dot(p, d.phi_t), out=p)
-            p += d.q
+        else:  # the mean piecewise, one segment per command
             tc = t0
             while True:
                 end = cmds[j + 1][0] if j + 1 < ncmd and cmds[j + 1][0] < t else t
                 if end > tc:
                     d = blk.discrete(end - tc)
-                    xn = dot(x, d.phi_t)
-                    xn += dot(cmds[j][1][1], d.gamma_t)
-                    x[...] = xn
+                    np.add(dot(x, d.phi_t), dot(cmds[j][1][1], d.gamma_t), out=x)
                     tc = end
                 if end >= t:
                     break
