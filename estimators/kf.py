@@ -256,7 +256,8 @@ class KalmanEstimator:
         if isinstance(m, LoadAngle) and not self.load_sensor:
             st["not_used"] += 1
             return
-        if m.t < self._min_core_time():
+        c = self._core
+        if m.t < max(c[0][0], c[1][0], c[2][0]):  # sampled before the fusion horizon of some block
             st["late_dropped"] += 1
             return
         if m.t < self._latest_t:
@@ -382,10 +383,6 @@ class KalmanEstimator:
         return out
 
     # internals ---------------------------------------------------------------------------------------------
-    def _min_core_time(self) -> float:
-        c = self._core
-        return max(c[0][0], c[1][0], c[2][0])
-
     def _advance_core(self, bi: int, t: float) -> None:
         """Predict block ``bi`` of the delayed state to ``t`` with the commands in force (mean piecewise,
         covariance in one step: it does not depend on the input)."""
