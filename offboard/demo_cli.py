@@ -29,7 +29,8 @@ from typing import Any
 from estimators.errors import UserError
 from offboard.fly_cli import add_flight_arguments, fly
 from offboard.outputs import prepare_output_dir, write_json_atomic
-from offboard.sim_cli import positive_float
+from offboard.sim_cli import non_negative_int, positive_float
+from sim_bridge.sensors import PRESETS as SENSOR_PRESETS
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -39,8 +40,15 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--realtime", action="store_true", help="pace by the wall clock instead of lockstep")
     p.add_argument("--scenario", default="paper", help="scenario to fly (default paper)")
     p.add_argument("--duration", type=positive_float, metavar="S", help="offboard flight time (default: scenario's)")
+    p.add_argument("--sensors", choices=SENSOR_PRESETS, default="px4-typical",
+                   help="emulator telemetry: sensor models of slung sim (noise, bias, latency; default px4-typical; "
+                        "ideal: exact telemetry); the rates are the ones the loop requests")
+    p.add_argument("--seed", type=non_negative_int, default=0, metavar="N",
+                   help="seed of the sensor noise and the disturbances (default 0; as slung sim --seed)")
+    p.add_argument("--disturbance", choices=("paper", "none"), default="paper",
+                   help="paper: the paper scenario's random disturbances from reference time 25 s (default)")
     p.add_argument("--noise", type=float, default=0.0,
-                   help="emulator telemetry noise scale (0: exact telemetry, 1: typical EKF / IMU noise)")
+                   help="legacy ad-hoc telemetry noise scale (only with --sensors ideal; 0: exact telemetry)")
     p.add_argument("--attitude-model", choices=("rigid", "paper"), default="rigid",
                    help="emulated plant rotation model (default rigid)")
     p.add_argument("--loss", type=float, default=0.0, help="emulated packet loss probability, both directions")
@@ -62,12 +70,18 @@ class EmulatorThread:
     """The bundled emulator (``sim_bridge.emulator_cli.build``) running in a daemon thread."""
 
     def __init__(self, flavor: str, port: int, *, lockstep: bool, period: float, vehicle: str | None,
-                 attitude_model: str, noise: float, loss: float, tlog: Path | None) -> None:
+                 attitude_model: str, noise: float, loss: float, tlog: Path | None, sensors: str = "ideal",
+                 seed: int = 0, disturbance: str = "none") -> None:
         from sim_bridge import emulator_cli
 
         argv = ["--flavor", flavor, "--mavlink", f"udpout:127.0.0.1:{port}",
                 "--lockstep" if lockstep else "--realtime", "--lockstep-period", repr(period),
-                "--attitude-model", attitude_model, "--noise", repr(noise)]
+                "--attitude-model", attitude_model, "--sensors", sensors, "--seed", str(seed)]
+        if sensors == "ideal":
+            argv += ["--noise", repr(noise)]
+        if disturbance != "none":
+            # the disturbance clock starts when the loop's reference starts (set_reference_start)
+            argv += ["--disturbance", disturbance, "--disturbance-origin", "harness"]
         if lockstep:
             argv += ["--lockstep-grace", "1.0"]  # free-run only when the loop is really not streaming
         if loss > 0.0:
@@ -93,6 +107,11 @@ class EmulatorThread:
         """Start the emulator thread."""
         self.thread.start()
         return self
+
+    def set_reference_start(self, t0: float) -> None:
+        """The loop's reference starts at simulation time ``t0`` (s): the disturbance clock starts there, so the
+        plant sees the disturbance ``slung sim`` applies at the same reference time."""
+        self.emu.set_disturbance_origin(t0)
 
     def truth(self, t: float) -> tuple[list[float], float]:
         """The plant state (18 floats, model frame) and cable tension (N) right now (metrics only)."""
@@ -128,13 +147,16 @@ def run_demo(args: argparse.Namespace, *, inject: tuple[tuple[str, float, float]
         raise UserError(f"--loss must be in [0, 1), got {args.loss!r}")
     if not (0.0 <= args.noise <= 10.0):
         raise UserError(f"--noise must be in [0, 10], got {args.noise!r}")
+    if args.noise > 0.0 and args.sensors != "ideal":
+        raise UserError("--noise is the legacy ad-hoc noise of exact telemetry: use it only with --sensors ideal")
     out = prepare_output_dir(args.out or default_out_dir())
     args.out = str(out)
     lockstep = not args.realtime
     port = free_udp_port()
     emu = EmulatorThread(args.flavor, port, lockstep=lockstep, period=1.0 / args.rate, vehicle=args.vehicle,
                          attitude_model=args.attitude_model, noise=args.noise, loss=args.loss,
-                         tlog=out / "emulator.tlog")
+                         tlog=out / "emulator.tlog", sensors=args.sensors, seed=args.seed,
+                         disturbance=args.disturbance)
     fly_args = argparse.Namespace(**vars(args))
     fly_args.connect = f"udpin:127.0.0.1:{port}"
     fly_args.trajectory = None
@@ -144,7 +166,8 @@ def run_demo(args: argparse.Namespace, *, inject: tuple[tuple[str, float, float]
     emu.start()
     summary: dict[str, Any] = {}
     try:
-        m, folder = fly(fly_args, lockstep=lockstep, truth_probe=emu.truth, inject=inject, quiet=quiet)
+        m, folder = fly(fly_args, lockstep=lockstep, truth_probe=emu.truth, inject=inject, quiet=quiet,
+                        on_reference_start=emu.set_reference_start)
     finally:
         sys.setswitchinterval(old_switch)
         summary = emu.stop()

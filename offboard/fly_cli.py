@@ -148,7 +148,7 @@ def build_loop_config(args: argparse.Namespace, lockstep: bool, takeoff: bool = 
 
 def fly(args: argparse.Namespace, *, lockstep: bool, takeoff: bool = True, truth_probe: TruthProbe | None = None,
         inject: tuple[tuple[str, float, float], ...] = (), backend: str = "pymavlink",
-        quiet: bool = False) -> tuple[dict[str, Any], Path]:
+        quiet: bool = False, on_reference_start: Any = None) -> tuple[dict[str, Any], Path]:
     """Connect, fly, write the report folder; returns (metrics, folder). Used by ``fly``, ``demo`` and tests."""
     from estimators.factory import make_estimator
     from offboard.link.connection import MavConnection
@@ -179,7 +179,8 @@ def fly(args: argparse.Namespace, *, lockstep: bool, takeoff: bool = True, truth
         est = make_estimator("kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate)
         loop = FlightLoop(conn, vehicle, scenario.reference, duration, params, mapper, est, cfg, truth_probe,
                           manager=manager, estimator_factory=lambda: make_estimator(
-                              "kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate))
+                              "kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate),
+                          on_reference_start=on_reference_start)
         if not quiet:
             print(f"slung fly: {info.flavour} (system {info.system}) on {args.connect}; {scenario.name}, "
                   f"{duration:g} s, {args.output} output at {args.rate:g} Hz"
