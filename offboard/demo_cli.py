@@ -113,13 +113,20 @@ class EmulatorThread:
         plant sees the disturbance ``slung sim`` applies at the same reference time."""
         self.emu.set_disturbance_origin(t0)
 
-    def truth(self, t: float) -> tuple[list[float], float]:
-        """The plant state (18 floats, model frame) and cable tension (N) right now (metrics only)."""
+    def truth(self, t: float) -> tuple[list[float], float, tuple[float, float, float, float]]:
+        """The plant state (18 floats, model frame) and cable tension (N) right now, and the disturbance the plant
+        receives from simulation time ``t`` on (force on the vehicle x, y, z world N, yaw torque N m; the columns
+        ``dist_*`` of ``slung sim``; zeros before the disturbance clock starts). Metrics only."""
         from sim_bridge.dynamics import tension
 
         emu = self.emu
         x = list(emu.x)
-        return x, float(tension(x, list(emu.u), emu.p))
+        d = (0.0, 0.0, 0.0, 0.0)
+        o = emu.dist_origin_us
+        if emu.disturbance is not None and o is not None:
+            v = emu.disturbance(max(round(t * 1e6) - o, 0) * 1e-6)
+            d = (float(v[0]), float(v[1]), float(v[2]), float(v[8]))
+        return x, float(tension(x, list(emu.u), emu.p)), d
 
     def stop(self) -> dict[str, Any]:
         """Stop, join, close the link; the emulator's summary."""

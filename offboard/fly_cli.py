@@ -258,7 +258,8 @@ def to_sim_log(result: FlightResult, scenario: Scenario, vehicle: Vehicle, rate_
         row[33:37] = (Fx - rfx0, Fy - rfy0, x[2] - rz0, math.remainder(x[8] - rpsi0, 2.0 * math.pi))
         row[37:46] = (*r[L["cmd_thrust"]:L["cmd_sigma_y"] + 1], r[L["cmd_saturated"]])
         row[COL["tension"]] = tens if math.isfinite(tens) else vehicle.mass_load * vehicle.gravity
-        row[47:51] = 0.0
+        dist = r[L["truth_dist_fx"]:L["truth_dist_tpsi"] + 1]
+        row[47:51] = dist if has_truth and np.all(np.isfinite(dist)) else 0.0
         row[51:54] = (x[0] + ell * r1, x[1] + ell * r2, x[2] + ell * r3)
         est = r[L["est_fx0"]:L["est_alpha_y_rate"] + 1]
         if has_truth:

@@ -81,7 +81,9 @@ EST_NAMES = ("fx0", "fx1", "fx2", "fx3", "fx4", "fx5", "fy0", "fy1", "fy2", "fy3
 #: the step; cmd_*: controller output; sp0..sp8: the setpoint's wire fields (attitude: q w,x,y,z NED->FRD,
 #: roll/pitch/yaw rate FRD, thrust, type_mask; actuator: roll, pitch, yaw, thrust, NaN x5); fallback: 1 when the
 #: mapper replaced the command; compute_s, latency_s: tick timing; truth_*: the plant state (18 floats) when a
-#: truth probe is attached (the demo), NaN otherwise; truth_tension: cable tension (N).
+#: truth probe is attached (the demo), NaN otherwise, sampled before the tick's setpoint is sent (in lockstep the
+#: plant is then exactly at t_vehicle); truth_tension: cable tension (N); truth_dist_*: the external disturbance
+#: the plant receives from t_vehicle on (force on the vehicle, world N; yaw torque, N m), NaN if not told.
 LIVE_COLUMNS: tuple[str, ...] = (
     "t_vehicle", "t_ref", "t_local", "n_meas",
     *("est_" + n for n in EST_NAMES),
@@ -93,11 +95,12 @@ LIVE_COLUMNS: tuple[str, ...] = (
     *(f"sp{i}" for i in range(9)),
     "fallback", "compute_s", "latency_s",
     *(f"truth_x{i}" for i in range(18)), "truth_tension",
+    "truth_dist_fx", "truth_dist_fy", "truth_dist_fz", "truth_dist_tpsi",
 )
 LIVE_COL = {n: i for i, n in enumerate(LIVE_COLUMNS)}
 
-#: truth_probe(t_vehicle) -> (18-float plant state, cable tension N) or None
-TruthProbe = Callable[[float], "tuple[list[float], float] | None"]
+#: truth_probe(t_vehicle) -> (18-float plant state, cable tension N[, (dist_fx, dist_fy, dist_fz, dist_tpsi)]) or None
+TruthProbe = Callable[[float], "tuple[Any, ...] | None"]
 
 
 @dataclass(frozen=True)
@@ -591,7 +594,8 @@ class FlightLoop:
         est_f = self.estimator
         probe = self.truth_probe
         nan9 = (math.nan,) * 9
-        nan19 = (math.nan,) * 19
+        nan23 = (math.nan,) * 23
+        nan4 = (math.nan,) * 4
         stats = self.stats
         while True:
             # ---- wait for the tick's trigger -------------------------------------------------------------
@@ -614,6 +618,8 @@ class FlightLoop:
                 # (robust to a drifting or slipping vehicle clock; behind the truth by the one-way link latency),
                 # on the 1 ms grid of time_boot_ms so that the filter sees a small set of step lengths
                 t_v = max(round(self._vehicle_now(), 3), t_v)
+            # the demo's truth (metrics only), before this tick's setpoint lets a lockstep plant move on
+            truth = probe(t_v) if probe is not None and t_v - t0 <= self.duration + 1e-9 else None
             tick_start = time.monotonic()
             perf0 = time.perf_counter()
             self.t_vehicle = t_v
@@ -662,8 +668,7 @@ class FlightLoop:
                     stats.missed += 1
             self._prev_sent = sent
             stats.ticks += 1
-            truth = probe(t_v) if probe is not None else None
-            tr = (*truth[0], truth[1]) if truth is not None else nan19
+            tr = (*truth[0], truth[1], *(truth[2] if len(truth) > 2 else nan4)) if truth is not None else nan23
             spf = setpoint_fields(sp)
             self.rows.append((t_v, t_ref, tick_start, float(self.n_meas), *est[0], *est[1], *est[2:],
                               *rfx, *rfy, *ref.z[:3], *ref.psi[:3], memory.int_z, memory.int_psi, memory.int_fx,
