@@ -184,17 +184,16 @@ def update_pair(
     floats.
     """
     n = aug.shape[1]
-    cols = aug[:, i:i + 2].tolist()  # rows i, i + 1: the 2 x 2 block of P; rows n...: the channels' two states
-    s11, s12 = cols[i]
-    s22 = cols[i + 1][1] + r[1]
+    (s11, s12), (_, s22) = aug[i:i + 2, i:i + 2].tolist()
     s11 += r[0]
+    s22 += r[1]
     det = s11 * s22 - s12 * s12
     if not det > 0.0:
         return None
     a, b, d = s22 / det, -s12 / det, s11 / det
     rows = [a, b, b, d]
     nis = 0.0
-    for c, (x0, x1) in enumerate(cols[n:]):
+    for c, (x0, x1) in enumerate(aug[n:, i:i + 2].tolist()):
         y0, y1 = z[2 * c] - x0, z[2 * c + 1] - x1
         ys0, ys1 = y0 * a + y1 * b, y0 * b + y1 * d
         nis += ys0 * y0 + ys1 * y1
