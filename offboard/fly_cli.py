@@ -50,6 +50,10 @@ from offboard.outputs import prepare_output_dir, write_json_atomic, write_text_a
 from offboard.sim import COL, LOG_COLUMNS, Scenario, SimConfig, SimLog
 from offboard.sim_cli import add_controller_arguments, positive_float
 
+#: the Kalman filter's fusion horizon behind its output, s (``estimators.factory.make_estimator``'s default: above
+#: the 4-9 ms latency of PX4 / ArduPilot estimates and the emulator's px4-typical sensors)
+ESTIMATOR_DELAY_S = 0.012
+
 
 def configure(p: argparse.ArgumentParser) -> None:
     """Arguments of ``slung fly``."""
@@ -175,11 +179,11 @@ def fly(args: argparse.Namespace, *, lockstep: bool, takeoff: bool = True, truth
         if info.flavour == "ardupilot" and args.output == "actuator":
             raise UserError("ArduPilot has no actuator-control setpoint: use --output attitude")
         mapper.set_autopilot(AutopilotModel(flavour=info.flavour))
-        load_sensor = True
-        est = make_estimator("kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate)
+        load_sensor = True  # the filter always has the load-angle channel; without LOADANG it predicts the swing
+        est = make_estimator("kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate, delay_s=ESTIMATOR_DELAY_S)
         loop = FlightLoop(conn, vehicle, scenario.reference, duration, params, mapper, est, cfg, truth_probe,
                           manager=manager, estimator_factory=lambda: make_estimator(
-                              "kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate),
+                              "kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate, delay_s=ESTIMATOR_DELAY_S),
                           on_reference_start=on_reference_start)
         if not quiet:
             print(f"slung fly: {info.flavour} (system {info.system}) on {args.connect}; {scenario.name}, "
@@ -197,7 +201,8 @@ def fly(args: argparse.Namespace, *, lockstep: bool, takeoff: bool = True, truth
         conn.close()
     wall = time.perf_counter() - wall0
     m = write_flight_outputs(out_dir, result, scenario, vehicle, args, cfg, info.flavour, wall, link,
-                             loop_t0=loop.events, figures=not args.no_figures)
+                             loop_t0=loop.events, figures=not args.no_figures,
+                             estimator_config={"load_sensor": load_sensor, "delay_s": ESTIMATOR_DELAY_S})
     if not quiet:
         print(f"scenario {scenario.name}: ended by {result.ended_by}, vehicle {result.end_state}")
         if m.get("rms"):
@@ -284,8 +289,10 @@ def to_sim_log(result: FlightResult, scenario: Scenario, vehicle: Vehicle, rate_
 
 def write_flight_outputs(out_dir: Path, result: FlightResult, scenario: Scenario, vehicle: Vehicle,
                          args: argparse.Namespace, cfg: LoopConfig, flavour: str, wall: float, link: dict[str, Any],
-                         loop_t0: Any = None, figures: bool = True) -> dict[str, Any]:
-    """timeseries_live.csv, events.json, metrics.json, timeseries.csv and figures."""
+                         loop_t0: Any = None, figures: bool = True,
+                         estimator_config: dict[str, Any] | None = None) -> dict[str, Any]:
+    """timeseries_live.csv, events.json, metrics.json, timeseries.csv and figures. ``estimator_config``: the
+    ``load_sensor`` and ``delay_s`` the filter was built with (recorded in ``config`` for ``slung replay``)."""
     from offboard import report
 
     rows = np.asarray(result.rows, dtype=float).reshape(-1, len(LIVE_COLUMNS))
@@ -316,9 +323,14 @@ def write_flight_outputs(out_dir: Path, result: FlightResult, scenario: Scenario
         "output": args.output, "mask": args.mask, "flavour": flavour, "rate_hz": cfg.rate_hz,
         "lockstep": cfg.lockstep, "hover_thrust_norm": result.autopilot.get("hover_thrust_norm"),
         "autopilot": result.autopilot, "origin_xy": list(result.origin), "reference_start_s": t_ref0,
-        "attitude_model": "vehicle", "sensors": "mavlink", "estimator": "kf", "load_sensor": result.load_sensor,
-        "vehicle": vehicle.name,
+        "attitude_model": "vehicle", "sensors": "mavlink", "estimator": "kf",
+        "load_telemetry_seen": result.load_sensor, "vehicle": vehicle.name,
+        "trajectory": str(Path(args.trajectory).resolve()) if getattr(args, "trajectory", None) else None,
     })
+    if estimator_config is not None:  # what make_estimator was given (replay rebuilds the same filter)
+        m["config"].update({"load_sensor": bool(estimator_config["load_sensor"]),
+                            "estimator_load_sensor": bool(estimator_config["load_sensor"]),
+                            "delay_s": float(estimator_config["delay_s"])})
     m["loop"] = {**result.stats.summary(cfg.rate_hz), "reference_start_s": t_ref0,
                  "stale_limit_s": cfg.stale_s, "swing_limit_rad": cfg.swing_limit_rad}
     m["link"] = link

@@ -467,12 +467,7 @@ class FlightLoop:
         ``warm_up``: only to warm a copy up (before take-off, while nothing has to be streamed)."""
         a, p = self.last_att, self.last_pos
         assert a is not None and p is not None
-        ax = self.last_load.alpha_x if self.last_load is not None else 0.0
-        ay = self.last_load.alpha_y if self.last_load is not None else 0.0
-        nx, ny, nxd, nyd = world_tilt(a.phi, a.theta, a.psi, 0.0, 0.0, 0.0)
-        k = self.k
-        guess = ControlState(flat_chain(k, p.x, p.vx, ay, 0.0, nx, nxd), flat_chain(k, p.y, p.vy, ax, 0.0, ny, nyd),
-                             p.z, p.vz, a.phi, a.theta, a.psi, 0.0, 0.0, 0.0, ax, ay, 0.0, 0.0)
+        guess = initial_guess(self.vehicle, a, p, self.last_load)
         t0 = max(a.t, p.t)
         self._guess = guess
         if warm_up:
@@ -750,6 +745,27 @@ class FlightLoop:
             signal.signal(sig, h)
 
 
+def initial_guess(vehicle: Vehicle, att: Attitude | None, pos: PositionVelocity | None,
+                  load: LoadAngle | None) -> ControlState:
+    """The filter's prior from the latest telemetry (model frame, SI): the vehicle at rest at the measured position
+    and velocity and attitude (0 where a message is missing), the swing from the cable-angle sensor (0 without
+    one), every rate not measured 0, expressed in the flat outputs through ``estimators.flatness``. The live loop
+    and ``slung replay`` both call it (the replay must rebuild the live filter bit for bit)."""
+    k = flat_constants(vehicle)
+    x = y = z = vx = vy = vz = 0.0
+    if pos is not None:
+        x, y, z, vx, vy, vz = pos.x, pos.y, pos.z, pos.vx, pos.vy, pos.vz
+    phi = theta = psi = 0.0
+    if att is not None:
+        phi, theta, psi = att.phi, att.theta, att.psi
+    ax = ay = 0.0
+    if load is not None:
+        ax, ay = load.alpha_x, load.alpha_y
+    nx, ny, nxd, nyd = world_tilt(phi, theta, psi, 0.0, 0.0, 0.0)
+    return ControlState(flat_chain(k, x, vx, ay, 0.0, nx, nxd), flat_chain(k, y, vy, ax, 0.0, ny, nyd),
+                        z, vz, phi, theta, psi, 0.0, 0.0, 0.0, ax, ay, 0.0, 0.0)
+
+
 def _settled(pos: Any, swing: Any, gx: float, gy: float, gz: float, long_enough: bool, has_load: bool) -> bool:
     """The approach criterion of :meth:`FlightLoop._approach` on the windows of position samples
     (t, x, y, z, vx, vy, vz) and load-angle samples (t, alpha_x, alpha_y): means within 1 cm, 3 cm/s, 0.02 rad."""
@@ -794,4 +810,5 @@ __all__ = [
     "LoopConfig",
     "LoopEvent",
     "LoopStats",
+    "initial_guess",
 ]

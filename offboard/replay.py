@@ -35,7 +35,6 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from estimators.control_state import ControlState
-from estimators.flatness import flat_chain, flat_constants, world_tilt
 from estimators.measurements import Attitude, LoadAngle, PositionVelocity
 from estimators.vehicle import Vehicle
 from offboard.link.setpoints import ActuatorTarget, AttitudeTarget
@@ -192,21 +191,11 @@ class ReplayResult:
 
 def initial_guess(vehicle: Vehicle, pv: PositionVelocity | None, att: Attitude | None,
                   load: LoadAngle | None) -> ControlState:
-    """The estimator's prior as the live loop builds it (``FlightLoop.initialize_estimator``): position and velocity,
-    attitude, swing from the cable-angle sensor (0 without one); every rate not measured is 0."""
-    k = flat_constants(vehicle)
-    x = y = z = vx = vy = vz = 0.0
-    if pv is not None:
-        x, y, z, vx, vy, vz = pv.x, pv.y, pv.z, pv.vx, pv.vy, pv.vz
-    phi = theta = psi = 0.0
-    if att is not None:
-        phi, theta, psi = att.phi, att.theta, att.psi
-    ax = ay = 0.0
-    if load is not None:
-        ax, ay = load.alpha_x, load.alpha_y
-    nx, ny, nxd, nyd = world_tilt(phi, theta, psi, 0.0, 0.0, 0.0)
-    return ControlState(flat_chain(k, x, vx, ay, 0.0, nx, nxd), flat_chain(k, y, vy, ax, 0.0, ny, nyd),
-                        z, vz, phi, theta, psi, 0.0, 0.0, 0.0, ax, ay, 0.0, 0.0)
+    """The estimator's prior as the live loop builds it: :func:`offboard.loop.initial_guess` (position and
+    velocity, attitude, swing from the cable-angle sensor, 0 without one; every rate not measured is 0)."""
+    from offboard.loop import initial_guess as live_initial_guess
+
+    return live_initial_guess(vehicle, att, pv, load)
 
 
 _F32 = struct.Struct("<f")

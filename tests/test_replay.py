@@ -42,7 +42,8 @@ def demo_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         d = tmp_path_factory.mktemp(f"demo-{name}")
         # the exit code is not asserted: a flight a watchdog ended early (a loaded test machine) must replay
         # exactly too; the replay tests check that there was a flight at all
-        main(["demo", "--flavor", flavor, "--duration", "1.5", "--output", output, "--no-figures", "--out", str(d)]
+        main(["demo", "--flavor", flavor, "--duration", "1.5", "--output", output, "--no-figures", "--out", str(d),
+              "--sensors", "ideal", "--disturbance", "none"]  # exact telemetry (the demo's default is px4-typical)
              + (["--realtime"] if mode == "realtime" else []))
         assert (d / "flight.tlog").is_file() and (d / "timeseries_live.csv").is_file()
         out[name] = d
