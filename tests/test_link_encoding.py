@@ -171,3 +171,28 @@ def test_url_forms() -> None:
         normalize_url("udpin:host")
     with pytest.raises(UserError):
         normalize_url("http://x")
+
+
+def test_ardupilot_raw_imu_and_scaled_imu2_are_fallback_imu_sources() -> None:
+    """ArduPilot streams RAW_IMU (IMU 1, scaled like SCALED_IMU: mG, mrad/s, time_usec) and SCALED_IMU2 (IMU 2,
+    time_boot_ms) by default: both decode to Imu in the model frame, and the filter gets one IMU stream: the
+    first higher-ranked message (HIGHRES_IMU) switches the lower ones off."""
+    mav = _mav()
+    dec = TelemetryDecoder(system=1)
+    got, _ = _wire(mav.scaled_imu2_encode(1000, 10, -20, -1000, 100, -200, 300, 0, 0, 0))
+    m = dec.decode(got)
+    assert isinstance(m, Imu) and m.t == pytest.approx(1.0)
+    assert (m.ax, m.ay, m.az) == pytest.approx((0.0980665, 0.196133, 9.80665), rel=1e-6)
+    assert (m.gx, m.gy, m.gz) == pytest.approx((0.1, 0.2, -0.3), abs=1e-9)
+    got, _ = _wire(mav.raw_imu_encode(2_000_000, 0, 0, -1000, 0, 0, 50, 0, 0, 0))
+    m = dec.decode(got)
+    assert isinstance(m, Imu) and m.t == pytest.approx(2.0) and m.az == pytest.approx(9.80665) and \
+        m.gz == pytest.approx(-0.05)
+    # RAW_IMU seen: IMU 2 is now refused
+    got, _ = _wire(mav.scaled_imu2_encode(2500, 0, 0, -1000, 0, 0, 0, 0, 0, 0))
+    assert dec.decode(got) is None and dec.counts["refused_secondary_imu"] == 1
+    got, _ = _wire(mav.highres_imu_encode(3_000_000, 0.0, 0.0, -9.81, 0.0, 0.0, 0.0, 0, 0, 0, 0, 0, 0, 0, 0))
+    assert isinstance(dec.decode(got), Imu)
+    got, _ = _wire(mav.raw_imu_encode(3_100_000, 0, 0, -1000, 0, 0, 0, 0, 0, 0))
+    assert dec.decode(got) is None and dec.counts["refused_secondary_imu"] == 2
+    assert dec.counts["Imu"] == 3

@@ -14,6 +14,11 @@ Decoded messages:
 - ODOMETRY (frame LOCAL_NED; velocity in LOCAL_NED or BODY_FRD, rotated to the world with the message's own
   quaternion) -> :class:`PositionVelocity` (only when ``use_odometry``, for the same reason);
 - HIGHRES_IMU (m/s^2, rad/s) and SCALED_IMU (mg, mrad/s) -> :class:`Imu` (specific force: +g on body z up at rest);
+  RAW_IMU (ArduPilot's first IMU, which it scales like SCALED_IMU: mG, mrad/s, ``time_usec``) and SCALED_IMU2
+  (its second IMU: mG, mrad/s, ``time_boot_ms``), which ArduPilot streams by default, are FALLBACK sources: the
+  filter must see one IMU stream, not the same motion twice, so the decoder ranks the IMU messages (HIGHRES_IMU
+  and SCALED_IMU first, then RAW_IMU, then SCALED_IMU2) and, once it has seen a message of a rank, refuses those
+  of lower ranks (counted as ``refused_secondary_imu``);
 - DEBUG_VECT named ``LOADANG`` (the emulator's cable-angle sensor, ``docs/emulator.md``): x = swing in the
   North-Down plane ``atan2(r_N, r_D)``, y = in the East-Down plane ``atan2(r_E, r_D)`` -> :class:`LoadAngle`,
   converted by rebuilding the cable direction ``r_ned ~ (tan x, tan y, 1)`` and taking the model frame's
@@ -42,6 +47,8 @@ LOAD_ANGLE_NAME = "LOADANG"
 MAV_FRAME_LOCAL_NED = 1
 MAV_FRAME_BODY_FRD = 12
 G0 = 9.80665
+#: IMU message -> rank (lower is preferred; see the module docstring)
+IMU_RANK: dict[str, int] = {"HIGHRES_IMU": 0, "SCALED_IMU": 0, "RAW_IMU": 1, "SCALED_IMU2": 2}
 
 #: message name -> message id, for SET_MESSAGE_INTERVAL requests
 MESSAGE_IDS: dict[str, int] = {
@@ -50,6 +57,8 @@ MESSAGE_IDS: dict[str, int] = {
     "LOCAL_POSITION_NED": 32,
     "HIGHRES_IMU": 105,
     "SCALED_IMU": 26,
+    "RAW_IMU": 27,
+    "SCALED_IMU2": 116,
     "ODOMETRY": 331,
     "DEBUG_VECT": 250,
     "TIMESYNC": 111,
@@ -91,6 +100,8 @@ class TelemetryDecoder:
     use_attitude_quaternion: bool = False
     use_odometry: bool = False
     counts: dict[str, int] = field(default_factory=dict)
+    #: best (lowest) IMU rank seen so far (``IMU_RANK``); 99 before any IMU message
+    imu_rank: int = 99
 
     def _count(self, key: str) -> None:
         self.counts[key] = self.counts.get(key, 0) + 1
@@ -130,6 +141,9 @@ class TelemetryDecoder:
             x, y, z = ned_to_model_vector(msg.x, msg.y, msg.z)
             vx, vy, vz = ned_to_model_vector(*v_ned)
             m = PositionVelocity(_vehicle_time_us(msg.time_usec), x, y, z, vx, vy, vz)
+        elif kind in IMU_RANK and IMU_RANK[kind] > self.imu_rank:
+            self._count("refused_secondary_imu")
+            return None
         elif kind == "HIGHRES_IMU":
             ax, ay, az = frd_to_model_body(msg.xacc, msg.yacc, msg.zacc)
             gx, gy, gz = frd_to_model_body(msg.xgyro, msg.ygyro, msg.zgyro)
@@ -138,6 +152,11 @@ class TelemetryDecoder:
             ax, ay, az = frd_to_model_body(msg.xacc * G0 * 1e-3, msg.yacc * G0 * 1e-3, msg.zacc * G0 * 1e-3)
             gx, gy, gz = frd_to_model_body(msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3)
             m = Imu(_vehicle_time_ms(msg.time_boot_ms), ax, ay, az, gx, gy, gz)
+        elif kind in ("RAW_IMU", "SCALED_IMU2"):
+            ax, ay, az = frd_to_model_body(msg.xacc * G0 * 1e-3, msg.yacc * G0 * 1e-3, msg.zacc * G0 * 1e-3)
+            gx, gy, gz = frd_to_model_body(msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3)
+            t = _vehicle_time_us(msg.time_usec) if kind == "RAW_IMU" else _vehicle_time_ms(msg.time_boot_ms)
+            m = Imu(t, ax, ay, az, gx, gy, gz)
         elif kind == "DEBUG_VECT":
             name = msg.name.decode("ascii", "replace") if isinstance(msg.name, bytes) else str(msg.name)
             if name.rstrip("\x00") != LOAD_ANGLE_NAME:
@@ -151,8 +170,10 @@ class TelemetryDecoder:
         if not is_finite(m):
             self._count("refused_nonfinite")
             return None
+        if kind in IMU_RANK:
+            self.imu_rank = IMU_RANK[kind]
         self._count(type(m).__name__)
         return m
 
 
-__all__ = ["LOAD_ANGLE_NAME", "MESSAGE_IDS", "TelemetryDecoder", "load_angle_from_ned"]
+__all__ = ["IMU_RANK", "LOAD_ANGLE_NAME", "MESSAGE_IDS", "TelemetryDecoder", "load_angle_from_ned"]
