@@ -463,6 +463,9 @@ def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], sta
         if config.live is None and math.isfinite(config.reference.start):
             t_shift = math.nan  # controller time from the given start: t_ref = t_v - start
     params = smc.ControllerParams.for_vehicle(vehicle, switching=config.switching, epsilon=config.epsilon)
+    from offboard.loop import ActuatorLag
+
+    lag = ActuatorLag(vehicle.motor_time_constant)  # the filter is given what the motors deliver, as live
     mask = config.mask
     if mask is None:
         masks = {round(e.payload[0].type_mask) for e in events if e.kind == "sp"
@@ -522,7 +525,7 @@ def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], sta
             cmd, memory = step(t_ref, est, rfx, rfy, ref.z, ref.psi, memory, params)
             sp = mapper.map(t_ref, cmd, est)
             if math.isfinite(cmd.thrust + cmd.tau_phi + cmd.tau_theta + cmd.tau_psi):
-                estimator.push_command(t_v, cmd.thrust, (cmd.tau_phi, cmd.tau_theta, cmd.tau_psi))
+                estimator.push_command(t_v, *lag(t_v, cmd.thrust, (cmd.tau_phi, cmd.tau_theta, cmd.tau_psi)))
             rows.append((t_v, t_ref, tk.lt, 1.0, *est.fx, *est.fy, *est[2:], *last_load, *last_pos, rfx[0], rfy[0],
                          ref.z[0], ref.psi[0], cmd.thrust, cmd.tau_phi, cmd.tau_theta, cmd.tau_psi, *_sp_fields(sp),
                          *tk.logged, *last_at, offboard, nan, nan))

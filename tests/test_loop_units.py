@@ -128,3 +128,26 @@ def test_flight_code_does_not_load_the_emulator() -> None:
             "print(sorted(m for m in sys.modules if m.split('.')[0] == 'sim_bridge'))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_actuator_lag_is_the_motors_first_order_response() -> None:
+    """The command the filter is given: the first one as is, then a first-order lag with the motor time constant
+    (exact per step, whatever the step), and a time constant of 0 passes commands through."""
+    from offboard.loop import ActuatorLag
+
+    lag = ActuatorLag(0.02)
+    assert lag(1.0, 6.0, (0.1, -0.2, 0.0)) == (6.0, (0.1, -0.2, 0.0))
+    t, out = 1.0, None
+    for _ in range(5):  # 5 steps of 4 ms = one time constant after a step to 8 N / 0.5 N m
+        t += 0.004
+        out = lag(t, 8.0, (0.5, -0.2, 0.0))
+    assert out is not None
+    k = 1.0 - math.exp(-1.0)
+    assert out[0] == pytest.approx(6.0 + 2.0 * k, rel=1e-12)
+    assert out[1][0] == pytest.approx(0.1 + 0.4 * k, rel=1e-12) and out[1][1] == pytest.approx(-0.2)
+    one = ActuatorLag(0.02)
+    one(1.0, 6.0, (0.1, -0.2, 0.0))
+    assert one(1.02, 8.0, (0.5, -0.2, 0.0))[0] == pytest.approx(out[0], rel=1e-12)  # one 20 ms step, same
+    assert ActuatorLag(0.0)(2.0, 3.0, (1.0, 2.0, 3.0)) == (3.0, (1.0, 2.0, 3.0))
+    with pytest.raises(ValueError):
+        ActuatorLag(math.nan)

@@ -142,6 +142,9 @@ def offboard_log(seconds: float = 3.0, rate_hz: float = 250.0, output: str = "at
     rx = mavlink2.MAVLink(None)
     dec = TelemetryDecoder(system=1)
     est_f = make_estimator("kf", v, load_sensor=True, rate_hz=rate_hz)
+    from offboard.loop import ActuatorLag
+
+    lag = ActuatorLag(v.motor_time_constant)  # the live loop gives the filter what the motors deliver
     params = smc.ControllerParams.for_vehicle(v, switching="smooth", epsilon=1.0)
     mapper = CommandMapper(v, MappingConfig(output=output))
     ref = make_scenario(scenario).reference
@@ -214,7 +217,7 @@ def offboard_log(seconds: float = 3.0, rate_hz: float = 250.0, output: str = "at
             cmd, memory = smc.step(t_ref, est, rfx, rfy, r.z, r.psi, memory, params)
             sp = mapper.map(t_ref, cmd, est)
             out += encode_record(lt + 100, encode(gcs, sp, t_ref, 1, 1).pack(gcs))
-            est_f.push_command(t_v, cmd.thrust, (cmd.tau_phi, cmd.tau_theta, cmd.tau_psi))
+            est_f.push_command(t_v, *lag(t_v, cmd.thrust, (cmd.tau_phi, cmd.tau_theta, cmd.tau_psi)))
             fields = ((*sp.q, sp.roll_rate, sp.pitch_rate, sp.yaw_rate, sp.thrust, float(sp.type_mask))
                       if output == "attitude" else (*sp, nan, nan, nan, nan, nan))
             live.append((t_v, t_ref, float(n_meas), *est.fx, *est.fy, *est[2:], *fields))
