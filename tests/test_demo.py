@@ -1,24 +1,36 @@
-"""``slung demo`` end to end over real UDP on 127.0.0.1, lockstep, both flavours and both output modes, against
-``slung sim`` with the same sensors (exact telemetry at the loop rate ~ the ``ideal`` preset), the same Kalman
-filter, the same plant model (rigid), rate (250 Hz) and duration.
+"""``slung demo`` end to end over real UDP on 127.0.0.1, lockstep, both flavours and both output modes, flying the
+whole paper scenario (50 s: climb, heading change, figure-eight, the random disturbances from 25 s) with the
+demo's defaults: px4-typical sensors in the emulator (noise, bias, latency of ``slung sim``'s models), the
+paper's disturbances with their clock started at the reference start, seed 0, the Kalman filter in the loop.
 
-Duration: 15 s of the paper scenario (climb, heading change, and the first 10 s of the figure-eight; the
-disturbances start at 25 s, which the emulator does not model, so both sides fly without them). The full 50 s run
-is shown in docs/usage-fly-demo.md.
+Compared with ``slung sim --scenario paper --sensors px4-fast --estimator kf --control-rate 250
+--attitude-model rigid --seed 0``: the same sensor models at the rates the loop requests (ATTITUDE and
+HIGHRES_IMU at 250 Hz, LOCAL_POSITION_NED at 100 Hz, LOADANG at 250 Hz = px4-fast's schedule), the same
+filter, controller, rate, plant model, disturbance signal and seed. Criterion per signal (e_Fx, e_Fy, e_z, alpha
+RMS): demo <= 1.3 x sim, no additive floor. Measured (seed 0; docs/usage-fly-demo.md): ratios 0.88-1.14.
 
-Criterion per signal (e_Fx, e_Fy, e_z, alpha RMS): demo <= 1.3 x sim + 5 mm (or 5 mrad). The additive floor is
-needed because with exact sensors the simulation tracks to well under a millimetre, where a ratio means nothing;
-5 mm covers the emulator's motor lag (20 ms) under the paper's sign switching, which makes the height loop
-limit-cycle by +-4 mm (the in-process simulation applies the thrust without lag).
+e_psi is reported and compared but cannot meet the ratio, for a reason outside the loop: the emulator's X mixer
+gives roll and pitch priority and yaw what is left (as PX4's allocator without airmode does), and on the paper's
+vehicle the yaw torque of 0.11 N m needs the whole hover margin of every motor, while the sliding-mode roll /
+pitch torques switch by +-0.3-0.5 N m; during the 0 -> 0.5 rad heading manoeuvre (which asks up to 0.09 N m) the
+plant receives about half the commanded yaw torque (logged u[3] -0.04..-0.06 N m for -0.11 commanded), so
+the heading overshoots by 0.23-0.31 rad and the heading integral, wound up by the overshoot, leaves a -0.004 rad
+offset that unwinds over tens of seconds. ``slung sim`` applies the torques without a mixer. Evidence: with
+the emulator's mixer made unlimited (an experiment, not a test), the same demo gives e_psi 0.0009 rad RMS
+against sim's 0.0009 (ratio 1.04, max 0.003 rad). So e_psi is asserted against what the mixer allows: the
+excess is confined to the manoeuvre (RMS after 10 s within 8 x sim's whole-run RMS; 5.0-5.3 x measured, the
+integral's offset) and the peak stays below 0.4 rad (0.23-0.31 measured).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import struct
 
+import numpy as np
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
@@ -30,27 +42,31 @@ from offboard import metrics as metrics_mod
 from offboard import sim as sim_mod
 from offboard import smc
 from offboard.demo_cli import configure, run_demo
-from offboard.scenarios import make_scenario
+from offboard.scenarios import PAPER_DISTURBANCE_START_S, make_scenario
 
-DURATION = 15.0
+DURATION = 50.0
+SEED = 0
 SIGNALS = ("e_Fx", "e_Fy", "e_z", "alpha")
-FLOOR = 0.005
+RATIO = 1.3
 
 
 def demo_args(tmp_path, *extra: str) -> argparse.Namespace:
     p = argparse.ArgumentParser()
     configure(p)
-    return p.parse_args(["--duration", str(DURATION), "--no-figures", "--out", str(tmp_path / "demo"), *extra])
+    return p.parse_args(["--no-figures", "--out", str(tmp_path / "demo"), *extra])
 
 
 @pytest.fixture(scope="module")
-def sim_metrics() -> dict:
+def sim_run() -> tuple[dict, sim_mod.SimLog]:
+    """slung sim with the demo's sensors (px4-fast = px4-typical at the loop's request rates), filter, rate,
+    plant model, disturbances and seed."""
     v = Vehicle()
-    sc = make_scenario("paper", duration=DURATION)
-    sc.disturbance = None
+    sc = make_scenario("paper", duration=DURATION, seed=SEED)
     params = smc.ControllerParams.for_vehicle(v, switching="sign", epsilon=1.0)
-    cfg = sim_mod.SimConfig(control_rate=250.0, attitude_model="rigid", sensors="ideal", estimator="kf")
-    return metrics_mod.compute(sim_mod.run(sc, v, params, cfg))
+    cfg = sim_mod.SimConfig(control_rate=250.0, attitude_model="rigid", sensors="px4-fast", estimator="kf",
+                            seed=SEED)
+    log = sim_mod.run(sc, v, params, cfg)
+    return metrics_mod.compute(log), log
 
 
 def wire_setpoints(tlog_path) -> list:
@@ -62,17 +78,55 @@ def wire_setpoints(tlog_path) -> list:
     return out
 
 
+def read_csv(path) -> dict[str, np.ndarray]:
+    with open(path, encoding="utf-8") as f:
+        names = f.readline().strip().split(",")
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    return {n: data[:, i] for i, n in enumerate(names)}
+
+
 @pytest.mark.parametrize(("flavor", "output"), [("px4", "attitude"), ("px4", "actuator"), ("ardupilot", "attitude")])
-def test_demo_lockstep_matches_sim(tmp_path, sim_metrics, flavor: str, output: str) -> None:
-    m, folder, emu = run_demo(demo_args(tmp_path, "--flavor", flavor, "--output", output), quiet=True)
+def test_demo_flies_the_paper_scenario_like_sim(tmp_path, sim_run, flavor: str, output: str) -> None:
+    sim_m, sim_log = sim_run
+    args = demo_args(tmp_path, "--flavor", flavor, "--output", output)
+    assert (args.sensors, args.seed, args.disturbance, args.rate) == ("px4-typical", SEED, "paper", 250.0)
+    m, folder, emu = run_demo(args, quiet=True)
     assert m["flight"]["ended_by"] == "completed" and m["completed"] and m["all_finite"]
     assert m["flight"]["truth_source"] == "emulator truth"
     assert m["duration_s"] == pytest.approx(DURATION, abs=0.05)
+    ratios = {k: m["rms"][k] / sim_m["rms"][k] for k in (*SIGNALS, "e_psi")}
     for k in SIGNALS:
-        assert m["rms"][k] <= 1.3 * sim_metrics["rms"][k] + FLOOR, (k, m["rms"][k], sim_metrics["rms"][k])
+        assert m["rms"][k] <= RATIO * sim_m["rms"][k], (k, m["rms"][k], sim_m["rms"][k], ratios)
+    # the emulator really was the paper scenario: noisy sensors, disturbance clock at the reference start
+    assert emu["sensors"] == "px4-typical"
+    dist = emu["disturbance"]
+    assert dist["origin_s"] == pytest.approx(m["loop"]["reference_start_s"], abs=1e-9)
+    ts = read_csv(folder / "timeseries.csv")
+    t = ts["t"]
+    # the disturbance the plant received, logged, is slung sim's at the same reference time
+    sim_t = sim_log.column("t")
+    idx = np.searchsorted(sim_t, t - 1e-9)
+    ok = idx < len(sim_t)
+    assert np.all(np.abs(sim_t[idx[ok]] - t[ok]) < 1e-9)
+    for c in ("dist_fx", "dist_fy", "dist_fz", "dist_tpsi"):
+        np.testing.assert_allclose(ts[c][ok], sim_log.column(c)[idx[ok]], atol=1e-12, err_msg=c)
+        assert np.all(ts[c][t < PAPER_DISTURBANCE_START_S - 1e-9] == 0.0) and np.max(np.abs(ts[c])) > 0.0
+    # columns agree with each other: the heading error is the logged heading minus its reference, the filter's
+    # heading error is small, the logged heading rate is the plant's (bounded), the tension near the load weight
+    np.testing.assert_allclose(ts["e_psi"], np.remainder(ts["psi"] - ts["psi_ref"] + np.pi, 2 * np.pi) - np.pi,
+                               atol=1e-7)
+    assert np.max(np.abs(ts["est_psi"])) < 0.05 and np.max(np.abs(ts["psi_rate"])) < 1.5
+    # e_psi: reported, compared, and held to what the emulator's mixer allows (module docstring)
+    after = t > 10.0
+    e_psi_after = float(np.sqrt(np.mean(ts["e_psi"][after] ** 2)))
+    assert e_psi_after <= 8.0 * sim_m["rms"]["e_psi"], (e_psi_after, sim_m["rms"]["e_psi"], ratios)
+    assert m["max"]["e_psi"] < 0.4, ratios
     # the vehicle was left holding (PX4 AUTO.LOITER, ArduPilot LOITER), armed and airborne
     assert emu["mode"] == ("AUTO.LOITER" if flavor == "px4" else "LOITER") and emu["armed"]
     assert emu["counters"]["setpoints_rejected"] == 0
+    # the filter was built as recorded
+    assert m["config"]["load_sensor"] is True and m["config"]["delay_s"] == pytest.approx(0.012)
+    assert m["config"]["load_telemetry_seen"] is True
     # the loop block and the tlog: every setpoint on the wire is finite and of the requested kind
     assert m["loop"]["ticks"] >= DURATION * 250 * 0.99 and m["loop"]["compute_us_p50"] > 0
     sps = wire_setpoints(folder / "flight.tlog")
@@ -84,6 +138,21 @@ def test_demo_lockstep_matches_sim(tmp_path, sim_metrics, flavor: str, output: s
         assert all(math.isfinite(v) for v in vals)
     raw = (folder / "flight.tlog").read_bytes()
     assert struct.unpack(">Q", raw[:8])[0] > 1_600_000_000 * 10**6  # QGC header: us since the epoch
+
+
+def test_demo_approach_settles_quickly_with_noisy_telemetry(tmp_path) -> None:
+    """The hold at the reference's start ends on 0.5 s window means, not on single noisy samples (which never
+    meet 1 cm / 3 cm/s with px4-typical noise and used to wait for the 30 s timeout)."""
+    m, folder, _ = run_demo(demo_args(tmp_path, "--duration", "0.5"), quiet=True)
+    assert m["flight"]["ended_by"] == "completed"
+    phases = [e["reason"] for e in json.loads((folder / "events.json").read_text())["loop"] if e["kind"] == "phase"]
+    at = [p for p in phases if p.startswith("at the start of the reference after")]
+    assert at and float(at[0].split("after ")[1].split(" s")[0]) < 5.0, phases
+
+
+def test_demo_refuses_noise_with_sensor_models(tmp_path) -> None:
+    with pytest.raises(UserError, match="--noise"):
+        run_demo(demo_args(tmp_path, "--noise", "1"), quiet=True)
 
 
 def test_ardupilot_actuator_output_is_refused(tmp_path) -> None:
