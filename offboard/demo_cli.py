@@ -6,7 +6,12 @@ metrics table and writes a report folder (figures, metrics, tlog) whose path it 
 Usage::
 
     slung demo [--flavor px4|ardupilot] [--realtime] [--output attitude|actuator] [--duration S] [--rate HZ]
-               [--out DIR]
+               [--sensors px4-typical|px4-fast|ideal] [--seed N] [--disturbance paper|none] [--out DIR]
+
+By default the demo IS ``slung sim``'s paper scenario over the wire: the emulator's telemetry has the
+``px4-typical`` sensor models (noise, bias, latency), the paper's disturbances start 25 s after the loop's
+reference start (the loop tells the emulator that time, ``EmulatorThread.set_reference_start``), seed 0; compare
+with ``slung sim --scenario paper --sensors px4-fast --estimator kf --control-rate 250 --attitude-model rigid``.
 
 Lockstep by default (the emulator advances one control period per setpoint, so the run does not depend on the
 machine's speed); ``--realtime`` paces both by the wall clock. The emulator runs in this process only so that the
