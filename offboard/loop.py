@@ -406,16 +406,21 @@ class FlightLoop:
         assert self.goal is not None
         gx, gy, gz, _ = self.goal
         start = self._now_vehicle()
+        # window entries are stamped with the loop's clock (``_now_vehicle``: vehicle time in lockstep, local time
+        # in real time); a new sample is one with a newer sample time
         pos: deque[tuple[float, float, float, float, float, float, float]] = deque()
         swing: deque[tuple[float, float, float]] = deque()
+        last_p = last_l = -math.inf
         while True:
             self.stream_hover()
             now = self._now_vehicle()
             p, ld = self.last_pos, self.last_load
-            if p is not None and (not pos or p.t > pos[-1][0]):
-                pos.append((p.t, p.x, p.y, p.z, p.vx, p.vy, p.vz))
-            if ld is not None and (not swing or ld.t > swing[-1][0]):
-                swing.append((ld.t, ld.alpha_x, ld.alpha_y))
+            if p is not None and p.t > last_p:
+                last_p = p.t
+                pos.append((now, p.x, p.y, p.z, p.vx, p.vy, p.vz))
+            if ld is not None and ld.t > last_l:
+                last_l = ld.t
+                swing.append((now, ld.alpha_x, ld.alpha_y))
             for q in (pos, swing):
                 while q and q[0][0] < now - settle_s:
                     q.popleft()
