@@ -7,19 +7,19 @@ Compared with ``slung sim --scenario paper --sensors px4-fast --estimator kf --c
 --attitude-model rigid --seed 0``: the same sensor models at the rates the loop requests (ATTITUDE and
 HIGHRES_IMU at 250 Hz, LOCAL_POSITION_NED at 100 Hz, LOADANG at 250 Hz = px4-fast's schedule), the same
 filter, controller, rate, plant model, disturbance signal and seed. Criterion per signal (e_Fx, e_Fy, e_z, alpha
-RMS): demo <= 1.3 x sim, no additive floor. Measured (seed 0; docs/usage-fly-demo.md): ratios 0.88-1.14.
+RMS): demo <= 1.3 x sim, no additive floor. Measured (seed 0; docs/usage-fly-demo.md): ratios 0.88-1.13.
 
 e_psi is reported and compared but cannot meet the ratio, for a reason outside the loop: the emulator's X mixer
 gives roll and pitch priority and yaw what is left (as PX4's allocator without airmode does), and on the paper's
 vehicle the yaw torque of 0.11 N m needs the whole hover margin of every motor, while the sliding-mode roll /
 pitch torques switch by +-0.3-0.5 N m; during the 0 -> 0.5 rad heading manoeuvre (which asks up to 0.09 N m) the
 plant receives about half the commanded yaw torque (logged u[3] -0.04..-0.06 N m for -0.11 commanded), so
-the heading overshoots by 0.23-0.31 rad and the heading integral, wound up by the overshoot, leaves a -0.004 rad
+the heading overshoots by 0.22-0.31 rad and the heading integral, wound up by the overshoot, leaves a -0.004 rad
 offset that unwinds over tens of seconds. ``slung sim`` applies the torques without a mixer. Evidence: with
 the emulator's mixer made unlimited (an experiment, not a test), the same demo gives e_psi 0.0009 rad RMS
 against sim's 0.0009 (ratio 1.04, max 0.003 rad). So e_psi is asserted against what the mixer allows: the
-excess is confined to the manoeuvre (RMS after 10 s within 8 x sim's whole-run RMS; 5.0-5.3 x measured, the
-integral's offset) and the peak stays below 0.4 rad (0.23-0.31 measured).
+excess is confined to the manoeuvre (RMS after 10 s within 8 x sim's whole-run RMS; 4.8-5.3 x measured, the
+integral's offset) and the peak stays below 0.4 rad (0.22-0.31 measured).
 """
 
 from __future__ import annotations
