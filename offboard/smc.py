@@ -29,7 +29,8 @@ Laws (paper Section 3, corrected as listed in ``docs/model.md``):
   ``+(I_theta/g) F_x^(4)`` and ``-(I_phi/g) F_y^(4)`` included.
 
 ``sw`` is ``sign`` or the continuous approximation ``v / (|v| + eps)`` of (92).
-The integrals of the four errors are the controller's only memory (errata E11).
+The integrals of the four errors are the controller's only memory (errata E11); each is held while its
+loop's command is clipped (anti-windup, a deviation from the print, ``docs/model.md`` C-10).
 Commands are saturated to the vehicle's limits; a non-finite estimate or reference yields the hover command
 and a ``valid = False`` flag, never a NaN.
 """
@@ -300,4 +301,14 @@ def step(
     cmd = Command(thrust, tau_phi, tau_theta, tau_psi, s_z, s_psi, sigma_x, sigma_y, s1 or s2 or s3 or s4, True)
     if not math.isfinite(thrust + tau_phi + tau_theta + tau_psi + int_z + int_psi + int_fx + int_fy):
         return hover_command(params), memory
+    # Anti-windup (not in the paper): while a loop's command is clipped its error integral is held, so that a
+    # long saturation (a heading manoeuvre beyond the yaw authority) does not leave the surface far from zero
+    # and an offset of rho / gain that takes tens of seconds to unwind. The horizontal integrals share the
+    # roll and pitch torques (heading-aligned frame), so both are held when either torque is clipped.
+    if s1:
+        int_z = memory.int_z
+    if s4:
+        int_psi = memory.int_psi
+    if s2 or s3:
+        int_fx, int_fy = memory.int_fx, memory.int_fy
     return cmd, ControllerMemory(int_z, int_psi, int_fx, int_fy, t)

@@ -159,10 +159,28 @@ def test_commands_are_saturated_to_the_vehicle_limits() -> None:
 
 def test_step_is_pure() -> None:
     params = smc.ControllerParams.for_vehicle(VEHICLE)
-    state = _hover_state(fx=(0.1, 0.2, 0.3, 0.1, 0.2, 0.0), alpha_x=-0.05, alpha_y=0.1, theta=0.05)
+    state = _hover_state(fx=(1e-3, 2e-3, 3e-3, 1e-3, 2e-3, 0.0), alpha_x=-0.005, alpha_y=0.01, theta=0.005)
     mem = smc.ControllerMemory(0.01, 0.0, 0.001, -0.002, 1.0)
     a = smc.step(1.001, state, hold(0.0), hold(0.0), hold(1.0), ZERO7, mem, params)
     b = smc.step(1.001, state, hold(0.0), hold(0.0), hold(1.0), ZERO7, mem, params)
     assert a == b
-    assert a[1].int_fx == pytest.approx(0.001 + 0.1 * 0.001)  # integral advanced by the elapsed time
+    assert not a[0].saturated
+    assert a[1].int_fx == pytest.approx(0.001 + 1e-3 * 0.001)  # integral advanced by the elapsed time
     assert a[1].int_fy == pytest.approx(-0.002)  # zero error in y: unchanged
+
+
+def test_integrals_are_held_while_the_command_is_clipped() -> None:
+    """Anti-windup (docs/model.md C-10): a clipped loop does not integrate its error."""
+    params = smc.ControllerParams.for_vehicle(VEHICLE)
+    mem = smc.ControllerMemory(0.01, 0.02, 0.001, -0.002, 1.0)
+    big_yaw = _hover_state(psi=1.0)  # far beyond the yaw authority
+    cmd, new = smc.step(1.01, big_yaw, hold(0.0), hold(0.0), hold(1.0), ZERO7, mem, params)
+    assert cmd.saturated and abs(cmd.tau_psi) == pytest.approx(VEHICLE.yaw_torque_max)
+    assert new.int_psi == mem.int_psi
+    assert new.int_fx == mem.int_fx and new.int_z == pytest.approx(mem.int_z)
+    small_yaw = _hover_state(psi=1e-4)
+    cmd, new = smc.step(1.01, small_yaw, hold(0.0), hold(0.0), hold(1.0), ZERO7, mem, params)
+    assert not cmd.saturated and new.int_psi == pytest.approx(0.02 + 1e-4 * 0.01)
+    big_x = _hover_state(fx=(5.0, 0, 0, 0, 0, 0))
+    cmd, new = smc.step(1.01, big_x, hold(0.0), hold(0.0), hold(1.0), ZERO7, mem, params)
+    assert cmd.saturated and (new.int_fx, new.int_fy) == (mem.int_fx, mem.int_fy)
