@@ -96,13 +96,19 @@ def stop_emulator(proc: subprocess.Popen, summary: Path) -> dict:
 
 def test_telemetry_cut_leads_to_hold_within_limit(tmp_path: Path) -> None:
     """Real time (the limit is a wall-clock limit): the relay stops the emulator's packets 2 s into the controlled
-    flight; the loop must ask for hold between 0.1 s (the limit) and 0.3 s after the last packet it received."""
+    flight; the loop must ask for hold between the limit and the limit + 0.2 s after the last packet it received.
+
+    The limit is set to 0.25 s here rather than the 0.1 s default: on a shared 2-core CI machine running the
+    emulator, the loop and the test at once, a scheduling gap of 0.1 s before the cut sometimes tripped the
+    watchdog early (correctly, but then the cut itself went untested). The check is the same, relative to the limit.
+    """
+    limit = 0.25
     loop_port = free_udp_port()
     relay = Relay(loop_port, cut_after=500)  # 2 s of control at 250 Hz
     relay.start()
     summary_path = tmp_path / "emu.json"
     emu = start_emulator(relay.port, "--realtime", summary=summary_path)
-    args = demo_args(tmp_path, "--scenario", "hover", "--duration", "10")
+    args = demo_args(tmp_path, "--scenario", "hover", "--duration", "10", "--stale-limit", str(limit))
     args.connect, args.trajectory = f"udpin:127.0.0.1:{loop_port}", None
     try:
         m, folder = fly(args, lockstep=False, quiet=True)
@@ -121,8 +127,9 @@ def test_telemetry_cut_leads_to_hold_within_limit(tmp_path: Path) -> None:
              and (mm.param2, mm.param3) == (4.0, 3.0) and mm._timestamp > last_rx]
     assert holds, "no hold command after the telemetry stopped"
     delay = holds[0] - last_watched
-    # watchdog limit 0.1 s: the hold request leaves between the limit and the limit + 0.2 s
-    assert 0.1 - 0.005 <= delay <= 0.1 + 0.2, (delay, holds[0] - last_rx)
+    assert m["loop"]["stale_limit_s"] == limit
+    # the hold request leaves between the limit and the limit + 0.2 s
+    assert limit - 0.005 <= delay <= limit + 0.2, (delay, holds[0] - last_rx)
 
 
 def test_thirty_percent_packet_loss_flies_bounded_or_aborts_to_hold(tmp_path: Path) -> None:
