@@ -32,9 +32,9 @@ from pathlib import Path
 from typing import Any
 
 from estimators.errors import UserError
+from offboard.cli_args import non_negative_int, positive_float
 from offboard.fly_cli import add_flight_arguments, fly
 from offboard.outputs import prepare_output_dir, write_json_atomic
-from offboard.sim_cli import non_negative_int, positive_float
 from sim_bridge.sensors import PRESETS as SENSOR_PRESETS
 
 

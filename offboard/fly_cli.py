@@ -33,6 +33,7 @@ from estimators.flatness import flat_chain, flat_constants, world_tilt
 from estimators.vehicle import Vehicle, load_vehicle
 from offboard import metrics as metrics_mod
 from offboard import smc
+from offboard.cli_args import add_controller_arguments, positive_float
 from offboard.command_mapping import AutopilotModel, CommandMapper, MappingConfig
 from offboard.link.setpoints import MASKS
 from offboard.loop import (
@@ -48,7 +49,6 @@ from offboard.loop import (
 )
 from offboard.outputs import prepare_output_dir, write_json_atomic, write_text_atomic
 from offboard.sim import COL, LOG_COLUMNS, Scenario, SimConfig, SimLog
-from offboard.sim_cli import add_controller_arguments, positive_float
 
 #: the Kalman filter's fusion horizon behind its output, s (``estimators.factory.make_estimator``'s default: above
 #: the 4-9 ms latency of PX4 / ArduPilot estimates and the emulator's px4-typical sensors)

@@ -18,18 +18,12 @@ from typing import Any
 
 from estimators.errors import UserError
 from estimators.vehicle import load_vehicle
+from offboard.cli_args import finite_float
 
 EXIT_NOT_REPLAYABLE = 3
 
 
-def _time(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a time in seconds, got {text!r}") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"expected a finite time in seconds, got {text!r}")
-    return v
+_time = finite_float  # a time in seconds: any finite number
 
 
 def _rate(text: str) -> float:

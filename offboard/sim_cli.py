@@ -7,7 +7,6 @@ Usage: ``slung sim --scenario paper [--switching sign|smooth] [--epsilon E] [--d
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from typing import Any
 
@@ -16,48 +15,10 @@ from estimators.vehicle import load_vehicle
 from offboard import metrics as metrics_mod
 from offboard import sim as sim_mod
 from offboard import smc
+from offboard.cli_args import add_controller_arguments, non_negative_int, positive_float
 from offboard.outputs import prepare_output_dir
 from offboard.scenarios import SCENARIOS, make_scenario
 from sim_bridge.sensors import PRESETS as SENSOR_PRESETS
-
-
-def finite_float(text: str) -> float:
-    """argparse type: a finite number."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
-    return v
-
-
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0."""
-    v = finite_float(text)
-    if v <= 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
-    return v
-
-
-def non_negative_int(text: str) -> int:
-    """argparse type: a whole number >= 0."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
-    return v
-
-
-def add_controller_arguments(p: argparse.ArgumentParser) -> None:
-    """Controller options shared by ``sim``, ``fly``, ``demo`` and ``replay``."""
-    p.add_argument("--switching", choices=("sign", "smooth"), default="sign",
-                   help="switching function: the paper's sign(.) or v/(|v|+eps) of eq. (92) (default: sign)")
-    p.add_argument("--epsilon", type=positive_float, default=1.0, metavar="E",
-                   help="smoothing width of eq. (92) for --switching smooth (default: 1, the paper's)")
-    p.add_argument("--vehicle", metavar="FILE", help="vehicle description (TOML); default: the paper's Table 1")
 
 
 def configure(p: argparse.ArgumentParser) -> None:

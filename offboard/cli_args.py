@@ -1,0 +1,49 @@
+"""Argument types and options shared by the ``slung`` commands.
+
+Kept apart from the command modules so that the flight commands (``fly``, ``demo``, ``replay``) can share them
+without importing ``slung sim``'s module, which loads the plant and sensor models (``sim_bridge``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite number."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"must be finite, got {text!r}")
+    return v
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    v = finite_float(text)
+    if v <= 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return v
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: a whole number >= 0."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
+    return v
+
+
+def add_controller_arguments(p: argparse.ArgumentParser) -> None:
+    """Controller options shared by ``sim``, ``fly``, ``demo`` and ``replay``."""
+    p.add_argument("--switching", choices=("sign", "smooth"), default="sign",
+                   help="switching function: the paper's sign(.) or v/(|v|+eps) of eq. (92) (default: sign)")
+    p.add_argument("--epsilon", type=positive_float, default=1.0, metavar="E",
+                   help="smoothing width of eq. (92) for --switching smooth (default: 1, the paper's)")
+    p.add_argument("--vehicle", metavar="FILE", help="vehicle description (TOML); default: the paper's Table 1")
