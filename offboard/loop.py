@@ -465,6 +465,8 @@ class FlightLoop:
         self.mgr.wait_for(lambda: (self._read() or True) and self.last_load is not None, 0.5)
         self.mgr.check_vehicle_constants(self.vehicle)
         self.initialize_estimator(warm_up=True)
+        # the full garbage collection the flight will not run (see _fly), now, before any setpoint is streamed
+        gc.collect()
         self.event("phase", "preflight ok: " + ", ".join(f"{k}" for k in sorted(self.last_rx_local)))
 
     def initialize_estimator(self, warm_up: bool = False) -> None:
@@ -570,8 +572,10 @@ class FlightLoop:
         stats = self.stats
         t_v = t0
         # no cyclic garbage collection during the flight: a full collection over the growing log costs
-        # milliseconds, a missed deadline; the loop's objects are acyclic and freed by reference counting
-        gc.collect()
+        # milliseconds, a missed deadline; the loop's objects are acyclic and freed by reference counting.
+        # No collection here either: in a large process (a test session, a host application) it stalls for
+        # 0.1 s or more between the last telemetry read and the first tick, and the stale-telemetry watchdog
+        # ends the flight before it starts; preflight collects, where nothing is streamed yet. Freezing is O(1).
         gc.freeze()
         gc_was_enabled = gc.isenabled()
         gc.disable()

@@ -4,6 +4,7 @@ loss, NaN injected at every stage of the pipeline, SIGTERM in flight."""
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import math
 import os
@@ -130,6 +131,32 @@ def test_telemetry_cut_leads_to_hold_within_limit(tmp_path: Path) -> None:
     assert m["loop"]["stale_limit_s"] == limit
     # the hold request leaves between the limit and the limit + 0.2 s
     assert limit - 0.005 <= delay <= limit + 0.2, (delay, holds[0] - last_rx)
+
+
+def test_a_large_host_process_does_not_stall_the_start_of_the_flight(tmp_path: Path) -> None:
+    """Regression: the loop used to run a full garbage collection between its last telemetry read and its first
+    tick. With `slung demo`'s emulator thread in the same process, the collection (which holds the interpreter
+    lock) stalled the telemetry too, and in a process with a large heap (this test session, a host application)
+    it lasted longer than the 0.1 s stale limit: the watchdog ended the real-time flight before its first tick.
+    Here the process holds a heap whose full collection takes at least twice the limit; the flight must start
+    and complete."""
+    heap: list[list[int]] = []
+    took = 0.0
+    while took < 0.2 and len(heap) < 12_000_000:  # grow until a full collection costs 2x the stale limit
+        heap.extend([] for _ in range(1_000_000))
+        t = time.perf_counter()
+        gc.collect()
+        took = time.perf_counter() - t
+    try:
+        m, folder, _emu = run_demo(demo_args(tmp_path, "--scenario", "hover", "--duration", "2", "--realtime",
+                                             "--sensors", "ideal", "--disturbance", "none"), quiet=True)
+    finally:
+        del heap
+    assert took > 0.1  # the stall the loop must not cause was really there to be caused
+    assert m["flight"]["ended_by"] == "completed", m["flight"]
+    assert m["loop"]["stale_limit_s"] == 0.1
+    ticks = (folder / "timeseries_live.csv").read_text().count("\n") - 1
+    assert ticks > 400  # 2 s at 250 Hz, a few deadlines missed at most
 
 
 def test_thirty_percent_packet_loss_flies_bounded_or_aborts_to_hold(tmp_path: Path) -> None:

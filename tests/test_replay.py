@@ -24,7 +24,7 @@ def _replay_cli(tlog: Path, out: Path, *extra: str) -> tuple[int, dict]:
 def _csv_columns(path: Path) -> dict[str, np.ndarray]:
     with open(path, encoding="utf-8") as fh:
         rows = list(csv.reader(fh))
-    data = np.array([[float(v) for v in r] for r in rows[1:]])
+    data = np.array([[float(v) for v in r] for r in rows[1:]]).reshape(-1, len(rows[0]))  # a flight of 0 ticks too
     return {name: data[:, i] for i, name in enumerate(rows[0])}
 
 
