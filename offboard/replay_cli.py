@@ -86,9 +86,12 @@ def build_config(args: argparse.Namespace, meta: dict[str, Any], live: Any = Non
     if scenario is not None:
         scenario = str(scenario)
         if scenario.startswith("trajectory:") and not args.trajectory:
-            scenario = None  # a trajectory file was flown: it must be given again
+            scenario = None  # a trajectory file was flown: the one the run recorded, if it is still there
+    flown_file = cfg.get("trajectory") if not args.scenario and not args.trajectory else None
     if args.trajectory:
         reference = ReferenceSpec("trajectory", trajectory=str(args.trajectory))
+    elif isinstance(flown_file, str) and Path(flown_file).is_file():
+        reference = ReferenceSpec("trajectory", trajectory=flown_file)
     elif scenario is not None:
         from offboard.scenarios import SCENARIOS
 
@@ -109,11 +112,13 @@ def build_config(args: argparse.Namespace, meta: dict[str, Any], live: Any = Non
     load_sensor: bool | None = None
     if args.no_load_sensor:
         load_sensor = False
-    elif meta:
-        load_sensor = bool(cfg.get("estimator_load_sensor", True))  # slung fly builds its filter with one
+    elif meta:  # the filter the live run was built with (older runs recorded only estimator_load_sensor)
+        load_sensor = bool(cfg.get("load_sensor", cfg.get("estimator_load_sensor", True)))
     rate = float(cfg.get("rate_hz") or args.rate) if meta else args.rate
+    delay = cfg.get("delay_s")
+    extra = {"delay_s": float(delay)} if isinstance(delay, (int, float)) and delay >= 0 else {}
     return ReplayConfig(
-        vehicle=vehicle, t_from=args.t_from, t_to=args.t_to, rate_hz=rate, load_sensor=load_sensor,
+        vehicle=vehicle, t_from=args.t_from, t_to=args.t_to, rate_hz=rate, load_sensor=load_sensor, **extra,
         reference=reference, switching=switching, epsilon=float(epsilon), output=cfg.get("output"),
         mask=cfg.get("mask"), autopilot=autopilot, live=live, estimate_only=args.estimate_only,
     )

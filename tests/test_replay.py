@@ -3,6 +3,7 @@ its "what is missing" reports, robustness to damaged logs, exit codes."""
 
 from __future__ import annotations
 
+import argparse
 import csv
 import json
 from pathlib import Path
@@ -13,6 +14,9 @@ from tlog_fixtures import LogSpec, flight_log, offboard_log, write_live_table
 
 from offboard import replay as rp
 from offboard.cli import main
+from offboard.demo_cli import EmulatorThread, free_udp_port
+from offboard.fly_cli import configure as fly_configure
+from offboard.fly_cli import fly
 from offboard.tlog import TlogReader
 
 
@@ -297,3 +301,34 @@ def test_a_reboot_in_the_log_restarts_the_estimator(tmp_path: Path) -> None:
     t = _csv_columns(tmp_path / "r" / "timeseries.csv")["t"]
     assert ((t > 30.0) & (t < 31.6)).sum() > 300 and ((t > 5.0) & (t < 6.6)).sum() > 300
     assert m["estimation"]["all_finite"] and m["estimation"]["alpha_x_vs_sensor"]["rms"] < 0.02
+
+
+def test_replay_of_a_trajectory_file_flight_uses_the_file_the_run_recorded(tmp_path: Path) -> None:
+    """`slung fly --trajectory FILE` records the file's path in metrics.json; the replay finds the reference there
+    (no --trajectory needed) and recomputes the flight's setpoints exactly."""
+    traj = tmp_path / "hop.toml"
+    traj.write_text("[[waypoint]]\nt = 0.0\nx = 0.0\ny = 0.0\nz = 1.0\n"
+                    "[[waypoint]]\nt = 3.0\nx = 0.3\ny = 0.1\nz = 1.1\n", encoding="utf-8")
+    port = free_udp_port()
+    emu = EmulatorThread("px4", port, lockstep=True, period=0.004, vehicle=None, attitude_model="rigid",
+                         noise=0.0, loss=0.0, tlog=None).start()
+    p = argparse.ArgumentParser()
+    fly_configure(p)
+    out = tmp_path / "flight"
+    args = p.parse_args(["--connect", f"udpin:127.0.0.1:{port}", "--trajectory", str(traj),
+                         "--no-figures", "--out", str(out)])
+    try:
+        m, folder = fly(args, lockstep=True, truth_probe=emu.truth, quiet=True,
+                        on_reference_start=emu.set_reference_start)
+    finally:
+        emu.stop()
+    assert m["flight"]["ended_by"] == "completed"
+    assert m["config"]["trajectory"] == str(traj.resolve())
+    code, r = _replay_cli(folder / "flight.tlog", tmp_path / "r")
+    assert code == 0
+    n = len(_csv_columns(folder / "timeseries_live.csv")["t_vehicle"])
+    assert n > 700  # 3 s at 250 Hz, the duration the file gives
+    assert r["live_agreement"]["setpoint_identical"] == n
+    assert r["setpoint_agreement"]["float32_identical"] == n
+    # a reference was known: the replay reports tracking errors against the file's waypoints
+    assert r["tracking"]["e_Fx"]["rms"] < 0.05 and r["tracking"]["e_z"]["rms"] < 0.05
