@@ -497,14 +497,15 @@ class Autopilot:
     def _command(self, cmd: int, p: tuple[float, ...], p7: float, msg: Any) -> tuple[int, Any]:
         d = self.d
         if cmd == d.MAV_CMD_COMPONENT_ARM_DISARM:
-            if not _finite(p[0]):
-                return DENIED, None
-            v = round(p[0])
+            v = round(p[0]) if _finite(p[0]) else None
             if v == 1:
                 return self._arm(p[1] if _finite(p[1]) else 0.0), None
             if v == 0:
                 return self._disarm(p[1] if _finite(p[1]) else 0.0), None
-            return DENIED, None
+            # neither arm nor disarm: both autopilots answer UNSUPPORTED (PX4 Commander also logs it)
+            if self.fl.is_px4:
+                self.statustext(CRITICAL, f"Unsupported ARM_DISARM param: {p[0]:.3f}")
+            return UNSUPPORTED, None
         if cmd == d.MAV_CMD_DO_SET_MODE:
             return self._cmd_set_mode(p), None
         if cmd == d.MAV_CMD_SET_MESSAGE_INTERVAL:

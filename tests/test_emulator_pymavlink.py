@@ -199,6 +199,8 @@ def test_arming_refused_until_the_estimator_is_ready() -> None:
         hb = e.recv("HEARTBEAT", 2.0, cond=lambda m: m.base_mode & 128)
         assert hb is not None
         assert e.command(MAV_CMD_ARM, 0, 0).result == 0  # disarm on the ground
+        assert e.command(MAV_CMD_ARM, 2, 0).result == 3  # neither arm nor disarm: UNSUPPORTED, as PX4 answers
+        assert any("Unsupported ARM_DISARM param" in t for t in e.texts)
         e.stop()
 
 
@@ -335,6 +337,7 @@ def test_arming_refused_in_land_mode_ardupilot() -> None:
         assert ack.result == 4  # FAILED
         assert any("not armable" in t for t in e.texts)
         assert e.command(MAV_CMD_ARM, 1, 2989).result == 0  # ArduPilot's force-arm magic skips the checks
+        assert e.command(MAV_CMD_ARM, 3, 0).result == 3  # neither arm nor disarm: UNSUPPORTED
         e.stop()
 
 
