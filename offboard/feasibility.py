@@ -1,0 +1,437 @@
+"""Pre-flight feasibility check of a reference: the nominal open-loop demands it makes of the vehicle.
+
+A pure function (no I/O, no clock): :func:`check_reference` samples the reference's flat outputs
+``(F_x, F_y, z, psi)`` and their derivatives on a grid over ``[0, duration]``, maps them through the flatness
+chain of the tangent-linearized model (``estimators.flatness``, ``docs/model.md`` section 8) to the states and
+inputs the controller will have to produce if it tracks the reference exactly, and compares their peaks with the
+limits of the vehicle, the controller, the setpoint mapping and the flight loop's swing watchdog. Formulas,
+thresholds and their justification: ``docs/references.md``, section "Pre-flight feasibility check".
+
+Per world axis (``F`` = F_x or F_y, ``c = M_t g^2 / (M l)``, ``omega^2 = M_t g / (M l)``, ``c / omega^2 = g``)::
+
+    swing        a    = -F'' / g                         (rad, alpha_y for x, alpha_x for y)
+    tilt         n    = F^(4) / c - a = F^(4)/c + F''/g  (rad, first-order horizontal thrust direction)
+    tilt rate    n'   = F^(5)/c + F'''/g
+    tilt accel.  n''  = (F^(6) + omega^2 F^(4)) / c = F^(6)/c + F^(4)/g
+    tilt jerk    n''' = F^(7)/c + F^(5)/g                (F^(7) by central differences of F^(6) on the grid)
+
+The tilt in the heading-aligned frame ``t = [theta, -phi] = Rz(-psi) n`` and its second derivative
+``t'' = Rz(-psi) n'' - 2 psi' J t' - psi'' J t + psi'^2 t`` give the torques exactly as the controller computes
+its feed-forward (``offboard/smc.py``): ``tau_theta = I_theta t1''``, ``tau_phi = -I_phi t2''``,
+``tau_psi = I_psi psi''``. Collective thrust is the magnitude of the force that accelerates the centre of mass of
+vehicle and load, ``u = M_t |a_com + g e3|``, with ``a_com,h = F'' + (M / M_t) l F^(4) / g`` (the vehicle is at
+``F + l F''/g`` to first order, the load at ``F``) and ``a_com,z = z'' + (m / M_t) l (a . a'' + |a'|^2)`` (the
+load's height ``z - l cos|a|`` to second order). The nominal attitude is the direction of that force; its Euler
+angles at the reference heading are compared with the mapping's per-axis tilt limit. The cable tension is
+``T = m |xi_p'' + g e3|``. Motor thrusts follow from the X mixer of ``sim_bridge/airframe.py``.
+
+This is a nominal check: open loop, on the linearized model, with a perfect estimate and no disturbance. A pass
+does not promise that the closed loop will fly the reference (tracking errors, disturbances, the estimator and the
+autopilot's inner loops all add to the demand); a failure means that even a perfect controller could not.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from estimators.vehicle import Vehicle
+
+#: Swing or tilt (rad) beyond which the first-order relations of the tangent linearization that the controller relies
+#: on (``F'' = -g a``, i.e. ``tan a ~ a``; ``F = x + l a``, i.e. ``sin a ~ a``) are off by more than a few percent:
+#: at 0.35 rad (20 deg) ``tan a`` exceeds ``a`` by 4.2 % and ``sin a`` falls short of it by 2.0 %.
+LINEARIZATION_WARN_RAD = 0.35
+#: Fraction of a hard limit above which a demand is reported as a warning (limits without a better-founded margin).
+WARN_FRACTION = 0.8
+#: Extra horizontal tracking error (m) from the unmodelled inner-loop lag above which a warning is given: the size of
+#: the largest closed-loop error of the bundled aggressive scenario (rest-to-rest: 5.0 cm in slung sim), so a warning
+#: means the lag alone could double it.
+LAG_WARN_ERROR_M = 0.05
+#: Grid: step = GRID_OMEGA_STEP / omega, omega the ratio estimate of :func:`_omega_estimate`. A peak whose local
+#: angular frequency (sqrt(|f''| / |f|) at the peak) is w is sampled within a relative error (w h)^2 / 8; the sharpest
+#: peak of the 6th derivative of the degree-15 step (the torque) has w about twice the ratio estimate (its extrema are
+#: 0.14 T apart near the ends), so the error is at most (2 x 0.05)^2 / 8 = 0.13 %.
+GRID_OMEGA_STEP = 0.05
+MAX_SAMPLES = 100_000
+COARSE_PER_PIECE = 50
+COARSE_MIN = 400
+
+# X mixer sign patterns (sim_bridge/airframe.py): roll, pitch, yaw contributions of motors 0..3
+_SX = (1.0, -1.0, -1.0, 1.0)
+_SY = (-1.0, -1.0, 1.0, 1.0)
+_SZ = (1.0, -1.0, 1.0, -1.0)
+
+
+@dataclass(frozen=True)
+class FeasibilityLimits:
+    """The limits a reference is checked against (SI units, radians).
+
+    thrust_min, thrust_max: collective thrust the controller and the mapping can deliver, N.
+    torque_max: (roll, pitch, yaw) torque clip of the controller, N m.
+    max_tilt: per-axis Euler tilt clip of the attitude setpoint (``MappingConfig.max_tilt``), rad.
+    max_rate: body-rate clip of the setpoint (``MappingConfig.max_rate``), rad/s; a hard limit only with the
+    ``rates`` mask (``rate_limit_hard``), otherwise the rate fields are ignored by the autopilot.
+    swing_limit: the flight loop's swing watchdog (``LoopConfig.swing_limit_rad``), rad.
+    thrust_reserve: thrust kept free for the height loop's switching term, ``rho_z M_t``, N.
+    torque_reserve: torque kept free for the switching terms, ``(I_phi rho_F / c, I_theta rho_F / c,
+    I_psi rho_psi)``, N m.
+    switching_authority: ``rho_F``, the largest matched F^(6) disturbance the horizontal sliding term rejects, m/s^6.
+    position_gain: ``K0``, the horizontal law's gain on the integral of the error (1/s^6): a slowly varying matched
+    disturbance d in F^(6) that the switching term does not cancel leaves an error of about d / K0 in F.
+    inner_loop_lag: lag between the commanded and the delivered torque that the controller does not model, s
+    (rate loop ``1 / B`` plus motor time constant for attitude output, the motor alone for actuator output); 0
+    disables the lag check.
+    """
+
+    thrust_min: float
+    thrust_max: float
+    torque_max: tuple[float, float, float]
+    max_tilt: float = 0.7
+    max_rate: float = 4.0
+    rate_limit_hard: bool = False
+    swing_limit: float = 0.8
+    thrust_reserve: float = 0.0
+    torque_reserve: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    switching_authority: float = math.inf
+    position_gain: float = math.inf
+    inner_loop_lag: float = 0.0
+
+    @classmethod
+    def from_config(cls, params: Any, mapping: Any = None, swing_limit_rad: float = 0.8,
+                    autopilot: Any = None) -> FeasibilityLimits:
+        """Limits from ``offboard.smc.ControllerParams`` (thrust and torque clips, gains), an optional
+        ``offboard.command_mapping.MappingConfig`` (tilt and rate clips, normalized thrust range, output kind) and
+        ``AutopilotModel`` (rate-loop bandwidth), and the loop's swing limit (``LoopConfig.swing_limit_rad``).
+
+        Without a mapping (``slung sim``: the controller drives the plant directly, no setpoint clips) the tilt is
+        limited by ``params.max_tilt`` (where the height law stops dividing by ``g_z``), the rate check is skipped
+        and the unmodelled lag is the motors' alone.
+        """
+        v: Vehicle = params.vehicle
+        g = params.gains
+        c = v.total_mass * v.gravity**2 / (v.mass_vehicle * v.cable_length)
+        thrust_min, thrust_max = params.thrust_min, params.thrust_max
+        lag = v.motor_time_constant
+        if mapping is not None:
+            thrust_min = max(thrust_min, mapping.thrust_min * v.thrust_max)
+            thrust_max = min(thrust_max, mapping.thrust_max * v.thrust_max)
+            max_tilt, max_rate = mapping.max_tilt, mapping.max_rate
+            rate_hard = mapping.output == "attitude" and mapping.mask == "rates"
+            if mapping.output == "attitude":
+                bw = (18.0, 18.0) if autopilot is None else autopilot.rate_bandwidth[:2]
+                lag += 1.0 / min(bw)
+        else:
+            max_tilt, max_rate, rate_hard = params.max_tilt, math.inf, False
+        I1, I2, I3 = v.inertia
+        return cls(
+            thrust_min=thrust_min,
+            thrust_max=thrust_max,
+            torque_max=tuple(params.torque_max),  # type: ignore[arg-type]
+            max_tilt=max_tilt,
+            max_rate=max_rate,
+            rate_limit_hard=rate_hard,
+            swing_limit=swing_limit_rad,
+            thrust_reserve=g.rho_z * v.total_mass,
+            torque_reserve=(I1 * g.rho_F / c, I2 * g.rho_F / c, I3 * g.rho_psi),
+            switching_authority=g.rho_F,
+            position_gain=g.K[0],
+            inner_loop_lag=lag,
+        )
+
+
+@dataclass(frozen=True)
+class Demand:
+    """One checked quantity: its worst value along the reference and the thresholds it is judged by.
+
+    name: short identifier (``swing``, ``tilt``, ``thrust``, ...); label: words for messages; unit: SI unit;
+    peak: the worst value (largest, or smallest when ``lower`` is True); time: when it occurs, s (reference time);
+    limit: hard limit (inf / -inf: none); warn_at: warning threshold; lower: the limit is a minimum;
+    status: ``"ok"``, ``"warning"`` or ``"infeasible"``; why: one-line reason for the status (empty when ok).
+    """
+
+    name: str
+    label: str
+    unit: str
+    peak: float
+    time: float
+    limit: float
+    warn_at: float
+    lower: bool
+    status: str
+    why: str
+
+
+@dataclass(frozen=True)
+class FeasibilityResult:
+    """Outcome of :func:`check_reference`.
+
+    feasible: no hard limit is violated; demands: every checked quantity; messages: one line per warning or
+    violation (violations first); duration: checked window [0, duration] s; step: grid step, s; samples: grid size.
+    """
+
+    feasible: bool
+    demands: tuple[Demand, ...]
+    messages: tuple[str, ...]
+    duration: float
+    step: float
+    samples: int
+
+    def demand(self, name: str) -> Demand:
+        """The demand called ``name`` (KeyError if unknown)."""
+        for d in self.demands:
+            if d.name == name:
+                return d
+        raise KeyError(name)
+
+    @property
+    def violations(self) -> tuple[Demand, ...]:
+        return tuple(d for d in self.demands if d.status == "infeasible")
+
+    @property
+    def warnings(self) -> tuple[Demand, ...]:
+        return tuple(d for d in self.demands if d.status == "warning")
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# grid
+# ----------------------------------------------------------------------------------------------------------------
+def _sample_grid(reference: Any, ts: np.ndarray) -> np.ndarray:
+    """Array (len(ts), 4, 7): channels fx, fy, z, psi, derivative orders 0..6."""
+    out = np.empty((len(ts), 4, 7))
+    for i, t in enumerate(ts.tolist()):
+        s = reference.sample(t)
+        out[i, 0] = s.fx[:7]
+        out[i, 1] = s.fy[:7]
+        out[i, 2] = s.z[:7]
+        out[i, 3] = s.psi[:7]
+    return out
+
+
+def _pieces(reference: Any, duration: float) -> list[float]:
+    """Window edges: 0, the reference's breakpoints inside (0, duration) if it has any, duration."""
+    bps = getattr(reference, "breakpoints", ())
+    inner = sorted({float(b) for b in bps if 0.0 < b < duration and math.isfinite(b)})
+    return [0.0, *inner, duration]
+
+
+def _omega_estimate(jets: np.ndarray) -> float:
+    """Largest ratio max|f^(k+1)| / max|f^(k)| over channels and orders k = 1..5 (rad/s): exactly omega for a
+    sinusoid of frequency omega, about (k + 1..15) / T for a degree-15 step of duration T."""
+    peak = np.abs(jets).max(axis=0)  # (4, 7)
+    best = 0.0
+    for ch in range(4):
+        scale = peak[ch, 1:].max()
+        if scale <= 0.0:
+            continue
+        for k in range(1, 6):
+            if peak[ch, k] > 1e-9 * scale and peak[ch, k + 1] > 0.0:
+                best = max(best, peak[ch, k + 1] / peak[ch, k])
+    return best
+
+
+def _grid(reference: Any, duration: float) -> np.ndarray:
+    """Time grid over [0, duration]: a coarse pass (COARSE_PER_PIECE points per piece between breakpoints) finds
+    the fastest local time scale 1/omega of the reference; the step is GRID_OMEGA_STEP / omega, capped at
+    MAX_SAMPLES points; the breakpoints are always on the grid."""
+    edges = _pieces(reference, duration)
+    if duration <= 0.0:
+        return np.array([0.0])
+    coarse = [np.linspace(a, b, COARSE_PER_PIECE, endpoint=False) for a, b in itertools.pairwise(edges) if b > a]
+    coarse.append(np.linspace(0.0, duration, COARSE_MIN))
+    ct = np.unique(np.concatenate(coarse))
+    omega = _omega_estimate(_sample_grid(reference, ct))
+    h = duration / COARSE_MIN if omega <= 0.0 else GRID_OMEGA_STEP / omega
+    h = max(h, duration / MAX_SAMPLES)
+    parts = []
+    for a, b in itertools.pairwise(edges):
+        if b > a:
+            n = max(2, math.ceil((b - a) / h) + 1)
+            parts.append(np.linspace(a, b, n))
+    return np.unique(np.concatenate(parts))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# the check
+# ----------------------------------------------------------------------------------------------------------------
+def _status(label: str, unit: str, peak: float, limit: float, warn_at: float, lower: bool,
+            warn_reason: str, fmt: str) -> tuple[str, str]:
+    def f(x: float) -> str:
+        return format(x, fmt)
+
+    if (peak < limit) if lower else (peak > limit):
+        word = "below" if lower else "above"
+        return "infeasible", f"{label} {f(peak)} {unit} {word} the limit {f(limit)} {unit}"
+    if (peak < warn_at) if lower else (peak > warn_at):
+        return "warning", f"{label} {f(peak)} {unit}: {warn_reason}"
+    return "ok", ""
+
+
+def check_reference(reference: Any, duration: float, vehicle: Vehicle, limits: FeasibilityLimits,
+                    step: float | None = None) -> FeasibilityResult:
+    """Nominal demands of ``reference`` over ``[0, duration]`` (s) on ``vehicle`` against ``limits``.
+
+    reference: anything with ``sample(t)`` returning flat outputs ``fx, fy, z, psi`` with derivatives of orders 0..6
+    (``offboard.reference.FlatSample``; world NWU, m, rad); a ``breakpoints`` attribute, if present, puts the
+    pieces' ends on the grid. step: grid step in s (default: derived from the reference, see :func:`_grid`).
+    Pure: no I/O. Never raises for a finite reference; a non-finite demand is reported as infeasible.
+    """
+    duration = float(duration)
+    if not (math.isfinite(duration) and duration >= 0.0):
+        raise ValueError(f"duration must be a finite number >= 0 s, got {duration!r}")
+    if step is None:
+        ts = _grid(reference, duration)
+    else:
+        if not (math.isfinite(step) and step > 0.0):
+            raise ValueError(f"step must be a finite number > 0 s, got {step!r}")
+        ts = np.unique(np.concatenate([np.arange(0.0, duration, step), [duration]]))
+    J = _sample_grid(reference, ts)
+    h = float(np.min(np.diff(ts))) if len(ts) > 1 else 0.0
+    return _evaluate(ts, J, vehicle, limits, h)
+
+
+def _evaluate(ts: np.ndarray, J: np.ndarray, v: Vehicle, lim: FeasibilityLimits, h: float) -> FeasibilityResult:
+    g, l = v.gravity, v.cable_length
+    M, m, Mt = v.mass_vehicle, v.mass_load, v.total_mass
+    c = Mt * g * g / (M * l)
+    I1, I2, I3 = v.inertia
+    F = J[:, 0:2, :]  # (N, 2 axes, orders)
+    z2 = J[:, 2, 2]
+    psi, w, wd = J[:, 3, 0], J[:, 3, 1], J[:, 3, 2]
+
+    a = -F[:, :, 2] / g
+    ad = -F[:, :, 3] / g
+    add = -F[:, :, 4] / g
+    n = F[:, :, 4] / c + F[:, :, 2] / g
+    nd = F[:, :, 5] / c + F[:, :, 3] / g
+    ndd = F[:, :, 6] / c + F[:, :, 4] / g
+    # n''' needs F^(7): central differences of F^(6) on the grid (the references are C^7, so it is continuous)
+    F7 = np.gradient(F[:, :, 6], ts, axis=0) if len(ts) > 2 else np.zeros_like(ndd)
+    nddd = F7 / c + F[:, :, 5] / g
+
+    swing = np.hypot(a[:, 0], a[:, 1])
+    # heading-aligned frame: t = Rz(-psi) n = [theta, -phi]
+    cp, sp = np.cos(psi), np.sin(psi)
+    t1 = cp * n[:, 0] + sp * n[:, 1]
+    t2 = -sp * n[:, 0] + cp * n[:, 1]
+    t1d = cp * nd[:, 0] + sp * nd[:, 1] + w * t2
+    t2d = -sp * nd[:, 0] + cp * nd[:, 1] - w * t1
+    t1dd = cp * ndd[:, 0] + sp * ndd[:, 1] + 2.0 * w * t2d + wd * t2 + w * w * t1
+    t2dd = -sp * ndd[:, 0] + cp * ndd[:, 1] - 2.0 * w * t1d - wd * t1 + w * w * t2
+    tau_theta = I2 * t1dd
+    tau_phi = -I1 * t2dd
+    tau_psi = I3 * wd
+    tilt_rate = np.maximum(np.abs(t1d), np.abs(t2d))
+    lag_dist = c * lim.inner_loop_lag * np.hypot(nddd[:, 0], nddd[:, 1])
+
+    # thrust: centre-of-mass acceleration (vehicle at F + l F''/g, load at F; load height z - l cos|a|)
+    second = (a * add).sum(axis=1) + (ad * ad).sum(axis=1)  # d^2/dt^2 of |a|^2 / 2
+    acom_h = F[:, :, 2] + (M / Mt) * l * F[:, :, 4] / g
+    acom_z = z2 + (m / Mt) * l * second
+    thrust = Mt * np.sqrt(acom_h[:, 0] ** 2 + acom_h[:, 1] ** 2 + (g + acom_z) ** 2)
+    # tilt per Euler axis as the controller's chain defines it: theta = t1, phi = -t2
+    tilt = np.maximum(np.abs(t1), np.abs(t2))
+    linear = np.maximum(swing, np.hypot(t1, t2))
+    # cable tension: m |xi_p'' + g e3|, load height acceleration z'' + l (a.a'' + |a'|^2)
+    tension = m * np.sqrt(F[:, 0, 2] ** 2 + F[:, 1, 2] ** 2 + (g + z2 + l * second) ** 2)
+    # motor thrusts (X mixer of sim_bridge/airframe.py)
+    arm = v.arm_length / math.sqrt(2.0)
+    kx, ky, kz = tau_phi / (4.0 * arm), tau_theta / (4.0 * arm), tau_psi / (4.0 * v.yaw_moment_coefficient)
+    motors = np.stack([thrust / 4.0 + sx * kx + sy * ky + sz * kz for sx, sy, sz in zip(_SX, _SY, _SZ)], axis=1)
+
+    demands: list[Demand] = []
+
+    def add(name: str, label: str, unit: str, values: np.ndarray, limit: float, warn_at: float, why: str,
+            lower: bool = False, fmt: str = ".4g", hard: bool = True) -> None:
+        vals = np.where(np.isfinite(values), values, -math.inf if lower else math.inf)
+        i = int(np.argmin(vals) if lower else np.argmax(vals))
+        peak = float(vals[i])
+        hard_limit = limit if hard else (-math.inf if lower else math.inf)
+        status, reason = _status(label, unit, peak, hard_limit, warn_at, lower, why, fmt)
+        if not math.isfinite(peak):
+            status, reason = "infeasible", f"{label} is not finite"
+        if status != "ok":
+            reason = f"{reason} at t = {float(ts[i]):.2f} s"
+        demands.append(Demand(name, label, unit, peak, float(ts[i]), limit, warn_at, lower, status, reason))
+
+    F_ = WARN_FRACTION
+    sl = lim.swing_limit
+    add("swing", "swing", "rad", swing, sl, F_ * sl, f"above {F_:.0%} of the swing watchdog's {sl:g} rad")
+    add("tilt", "tilt (per Euler axis)", "rad", tilt, lim.max_tilt, F_ * lim.max_tilt,
+        f"above {F_:.0%} of the tilt limit {lim.max_tilt:g} rad")
+    add("linearity", "largest swing or tilt", "rad", linear, math.inf, LINEARIZATION_WARN_RAD,
+        f"beyond {LINEARIZATION_WARN_RAD:g} rad the controller's tangent linearization is off by more than "
+        "2-4 % (tan a, sin a vs a)", hard=False)
+    tr = lim.thrust_reserve
+    add("thrust", "collective thrust", "N", thrust, lim.thrust_max, lim.thrust_max - tr,
+        f"leaves less than the height loop's switching reserve {tr:.2g} N below the limit {lim.thrust_max:.3g} N")
+    add("thrust_min", "collective thrust", "N", thrust, lim.thrust_min, lim.thrust_min + tr,
+        f"leaves less than the height loop's switching reserve {tr:.2g} N above the minimum {lim.thrust_min:.3g} N",
+        lower=True)
+    for name, label, vals, k in (("roll_torque", "roll torque", tau_phi, 0), ("pitch_torque", "pitch torque",
+                                 tau_theta, 1), ("yaw_torque", "yaw torque", tau_psi, 2)):
+        tm, rs = lim.torque_max[k], lim.torque_reserve[k]
+        add(name, label, "N m", np.abs(vals), tm, tm - rs,
+            f"leaves less than the switching term's {rs:.2g} N m below the limit {tm:.3g} N m")
+    fmax = v.motor_thrust_max
+    add("motor_max", "largest motor thrust", "N", motors.max(axis=1), fmax, F_ * fmax,
+        f"above {F_:.0%} of the motor's maximum {fmax:g} N")
+    add("motor_min", "smallest motor thrust", "N", motors.min(axis=1), 0.0, 0.05 * fmax,
+        f"below 5 % of the motor's maximum {fmax:g} N", lower=True)
+    if m > 0.0:
+        mg = m * g
+        add("tension", "cable tension", "N", tension, 0.0, 0.25 * mg,
+            f"below 25 % of the load's weight {mg:.2g} N: the cable may go slack", lower=True)
+    if math.isfinite(lim.max_rate):
+        add("tilt_rate", "tilt rate", "rad/s", tilt_rate, lim.max_rate, F_ * lim.max_rate,
+            f"above {F_:.0%} of the setpoint rate clip {lim.max_rate:g} rad/s", hard=lim.rate_limit_hard)
+    if lim.inner_loop_lag > 0.0 and math.isfinite(lim.position_gain):
+        add("lag", "tracking error from inner-loop lag", "m", lag_dist / lim.position_gain, math.inf,
+            LAG_WARN_ERROR_M, f"the {lim.inner_loop_lag * 1e3:.0f} ms of rate-loop and motor lag that the controller "
+            f"does not model may add up to this much tracking error (above {LAG_WARN_ERROR_M * 100:g} cm)",
+            hard=False)
+
+    demands.sort(key=lambda d: {"infeasible": 0, "warning": 1, "ok": 2}[d.status])
+    msgs = tuple(("infeasible: " if d.status == "infeasible" else "warning: ") + d.why
+                 for d in demands if d.status != "ok")
+    feasible = not any(d.status == "infeasible" for d in demands)
+    dur = float(ts[-1]) if len(ts) else 0.0
+    return FeasibilityResult(feasible, tuple(demands), msgs, dur, h, len(ts))
+
+
+def format_report(result: FeasibilityResult) -> str:
+    """Terminal table: one row per checked quantity (peak, time, warning threshold, limit, status), then the
+    messages."""
+    head = f"{'quantity':<34} {'peak':>10} {'at t [s]':>9} {'warn at':>10} {'limit':>10}  status"
+    lines = [f"reference feasibility (nominal, linearized; {result.samples} samples over {result.duration:g} s, "
+             f"step {result.step * 1e3:.3g} ms): {'FEASIBLE' if result.feasible else 'INFEASIBLE'}", head]
+
+    def num(x: float) -> str:
+        return "-" if not math.isfinite(x) else f"{x:.4g}"
+
+    for d in result.demands:
+        lab = f"{d.label}{' (min)' if d.lower else ''} [{d.unit}]"
+        lines.append(f"{lab:<34} {num(d.peak):>10} {d.time:>9.2f} {num(d.warn_at):>10} {num(d.limit):>10}  "
+                     f"{d.status}")
+    lines.extend(result.messages)
+    return "\n".join(lines)
+
+
+def peaks(result: FeasibilityResult, names: Sequence[str]) -> dict[str, float]:
+    """``{name: peak}`` for the named demands (a convenience for logs and tests)."""
+    return {n: result.demand(n).peak for n in names}
+
+
+__all__ = [
+    "LINEARIZATION_WARN_RAD",
+    "Demand",
+    "FeasibilityLimits",
+    "FeasibilityResult",
+    "check_reference",
+    "format_report",
+    "peaks",
+]
