@@ -294,7 +294,8 @@ def check_reference(reference: Any, duration: float, vehicle: Vehicle, limits: F
     return _evaluate(ts, J, vehicle, limits, h)
 
 
-def _evaluate(ts: np.ndarray, J: np.ndarray, v: Vehicle, lim: FeasibilityLimits, h: float) -> FeasibilityResult:
+def _profile(ts: np.ndarray, J: np.ndarray, v: Vehicle) -> dict[str, np.ndarray]:
+    """Nominal signals on the grid ``ts`` from the sampled jets ``J`` (see :func:`nominal_profile`)."""
     g, l = v.gravity, v.cable_length
     M, m, Mt = v.mass_vehicle, v.mass_load, v.total_mass
     c = Mt * g * g / (M * l)
@@ -326,7 +327,7 @@ def _evaluate(ts: np.ndarray, J: np.ndarray, v: Vehicle, lim: FeasibilityLimits,
     tau_phi = -I1 * t2dd
     tau_psi = I3 * wd
     tilt_rate = np.maximum(np.abs(t1d), np.abs(t2d))
-    lag_dist = c * lim.inner_loop_lag * np.hypot(nddd[:, 0], nddd[:, 1])
+    tilt_jerk = np.hypot(nddd[:, 0], nddd[:, 1])
 
     # thrust: centre-of-mass acceleration (vehicle at F + l F''/g, load at F; load height z - l cos|a|)
     second = (a * add).sum(axis=1) + (ad * ad).sum(axis=1)  # d^2/dt^2 of |a|^2 / 2
@@ -342,6 +343,37 @@ def _evaluate(ts: np.ndarray, J: np.ndarray, v: Vehicle, lim: FeasibilityLimits,
     arm = v.arm_length / math.sqrt(2.0)
     kx, ky, kz = tau_phi / (4.0 * arm), tau_theta / (4.0 * arm), tau_psi / (4.0 * v.yaw_moment_coefficient)
     motors = np.stack([thrust / 4.0 + sx * kx + sy * ky + sz * kz for sx, sy, sz in zip(_SX, _SY, _SZ)], axis=1)
+
+    return {
+        "t": ts, "swing": swing, "alpha_y": a[:, 0], "alpha_x": a[:, 1], "theta": t1, "phi": -t2,
+        "theta_rate": t1d, "phi_rate": -t2d, "tilt": tilt, "linearity": linear, "tilt_rate": tilt_rate,
+        "tilt_jerk": tilt_jerk, "thrust": thrust, "tau_phi": tau_phi, "tau_theta": tau_theta, "tau_psi": tau_psi,
+        "tension": tension, "motor_max": motors.max(axis=1), "motor_min": motors.min(axis=1),
+    }
+
+
+def nominal_profile(reference: Any, times: Sequence[float], vehicle: Vehicle) -> dict[str, np.ndarray]:
+    """The nominal open-loop signals of ``reference`` at ``times`` (s, increasing) on ``vehicle``, as arrays.
+
+    Keys (SI, model frame): ``t``; ``swing`` (rad, linear ``|F''| / g``), ``alpha_y``, ``alpha_x`` (rad);
+    ``theta``, ``phi`` (rad, Euler tilt of the linear chain at the reference heading) and their rates (rad/s);
+    ``tilt`` (rad, the larger of ``|phi|``, ``|theta|``); ``linearity`` (rad, the larger of the swing and the tilt
+    magnitude); ``tilt_rate`` (rad/s); ``tilt_jerk`` (rad/s^3, the magnitude of the third derivative of the world
+    tilt, by differences: needs a fine grid); ``thrust`` (N); ``tau_phi``, ``tau_theta``, ``tau_psi`` (N m, body
+    FLU); ``tension`` (N); ``motor_max``, ``motor_min`` (N, X mixer).
+    """
+    ts = np.asarray(times, dtype=float)
+    return _profile(ts, _sample_grid(reference, ts), vehicle)
+
+
+def _evaluate(ts: np.ndarray, J: np.ndarray, v: Vehicle, lim: FeasibilityLimits, h: float) -> FeasibilityResult:
+    p = _profile(ts, J, v)
+    m, g = v.mass_load, v.gravity
+    c = v.total_mass * g * g / (v.mass_vehicle * v.cable_length)
+    swing, tilt, linear, thrust = p["swing"], p["tilt"], p["linearity"], p["thrust"]
+    tau_phi, tau_theta, tau_psi, tension = p["tau_phi"], p["tau_theta"], p["tau_psi"], p["tension"]
+    tilt_rate = p["tilt_rate"]
+    lag_dist = c * lim.inner_loop_lag * p["tilt_jerk"]
 
     demands: list[Demand] = []
 
@@ -378,9 +410,9 @@ def _evaluate(ts: np.ndarray, J: np.ndarray, v: Vehicle, lim: FeasibilityLimits,
         add(name, label, "N m", np.abs(vals), tm, tm - rs,
             f"leaves less than the switching term's {rs:.2g} N m below the limit {tm:.3g} N m")
     fmax = v.motor_thrust_max
-    add("motor_max", "largest motor thrust", "N", motors.max(axis=1), fmax, F_ * fmax,
+    add("motor_max", "largest motor thrust", "N", p["motor_max"], fmax, F_ * fmax,
         f"above {F_:.0%} of the motor's maximum {fmax:g} N")
-    add("motor_min", "smallest motor thrust", "N", motors.min(axis=1), 0.0, 0.05 * fmax,
+    add("motor_min", "smallest motor thrust", "N", p["motor_min"], 0.0, 0.05 * fmax,
         f"below 5 % of the motor's maximum {fmax:g} N", lower=True)
     if m > 0.0:
         mg = m * g
@@ -433,5 +465,6 @@ __all__ = [
     "FeasibilityResult",
     "check_reference",
     "format_report",
+    "nominal_profile",
     "peaks",
 ]
