@@ -44,3 +44,16 @@ def test_mavsdk_backend_flies_the_emulator(tmp_path: Path) -> None:
         elif msg.get_type() == "SET_ATTITUDE_TARGET":
             sp_src.add(msg.get_srcSystem())
     assert cmd_src == {MAVSDK_SYSTEM_ID} and sp_src == {255}
+    # MAVSDK set the take-off altitude (a parameter set it runs blocking: the backend must keep feeding it the
+    # link meanwhile), so the autopilot's take-off climbed to the reference's 1 m, not to its 2.5 m default
+    assert m["flight"]["warnings"] == []
+    tko = [e for e in ev["management"] if e["kind"] == "mavsdk_set_takeoff_altitude"]
+    assert len(tko) == 1 and tko[0]["detail"] in ("1", "SUCCESS", "ActionResult.SUCCESS")
+    log = mavutil.mavlink_connection(str(folder / "flight.tlog"))
+    climb = []
+    while (msg := log.recv_match(type=["LOCAL_POSITION_NED", "HEARTBEAT"])) is not None:
+        if msg.get_type() == "HEARTBEAT" and msg.get_srcSystem() == 1 and msg.custom_mode == 6 << 16:
+            break  # OFFBOARD: the autopilot's take-off and hold are over
+        if msg.get_type() == "LOCAL_POSITION_NED":
+            climb.append(-msg.z)
+    assert climb and 0.8 < max(climb) < 1.3

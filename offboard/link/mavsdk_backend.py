@@ -121,11 +121,18 @@ class MavsdkManager(Manager):
 
     def _await(self, what: str, start: Callable[[Callable[..., None]], None], idle: Callable[[], None] | None,
                timeout: float = 10.0) -> Any:
-        """Start an ``*_async`` MAVSDK call and poll the link until its callback reports; the result."""
+        """Start an ``*_async`` MAVSDK call and poll the link until its callback reports; the result.
+
+        The call is started on a short-lived thread: some of MAVSDK's ``*_async`` calls block their caller until
+        the answer arrives (``Action.set_takeoff_altitude_async`` runs a blocking parameter set), and on the
+        ``raw://`` transport the answer only arrives while this thread keeps passing it the received bytes."""
         box: list[Any] = []
-        start(lambda result, _ud=None: box.append(result))
+        starter = threading.Thread(target=start, args=(lambda result, _ud=None: box.append(result),),
+                                   name=f"mavsdk-{what}", daemon=True)
+        starter.start()
         if not self.wait_for(lambda: bool(box), timeout, idle):
             raise UserError(f"MAVSDK {what}: no answer within {timeout:g} s")
+        starter.join(1.0)
         self.note(f"mavsdk_{what}", str(box[0]))
         return box[0]
 
