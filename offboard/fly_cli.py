@@ -48,7 +48,7 @@ from offboard.loop import (
     TruthProbe,
 )
 from offboard.outputs import prepare_output_dir, write_json_atomic, write_text_atomic
-from offboard.sim import COL, LOG_COLUMNS, Scenario, SimConfig, SimLog
+from offboard.runlog import COL, LOG_COLUMNS, Scenario, SimConfig, SimLog
 
 #: the Kalman filter's fusion horizon behind its output, s (``estimators.factory.make_estimator``'s default: above
 #: the 4-9 ms latency of PX4 / ArduPilot estimates and the emulator's px4-typical sensors)
@@ -120,7 +120,8 @@ def set_realtime_priority(priority: int) -> str | None:
 
 
 def make_reference(args: argparse.Namespace) -> tuple[Scenario, float]:
-    """The scenario (or a trajectory wrapped as one) and the flight duration."""
+    """The scenario (or a trajectory wrapped as one) and the flight duration: the reference part only (plant-free,
+    ``offboard.scenarios``); a live flight starts wherever the vehicle is."""
     from offboard.reference import load_trajectory_file
     from offboard.scenarios import make_scenario
 
@@ -131,9 +132,7 @@ def make_reference(args: argparse.Namespace) -> tuple[Scenario, float]:
     dur = args.duration or getattr(ref, "duration", None)
     if dur is None or not math.isfinite(dur) or dur <= 0:
         raise UserError(f"{args.trajectory}: the trajectory has no duration: give --duration")
-    r0 = ref.sample(0.0)
-    state = [r0.fx[0], r0.fy[0], r0.z[0]] + [0.0] * 9 + [0.0, 0.0, -1.0, 0.0, 0.0, 0.0]
-    sc = Scenario(f"trajectory:{Path(args.trajectory).name}", f"trajectory file {args.trajectory}", dur, ref, state)
+    sc = Scenario(f"trajectory:{Path(args.trajectory).name}", f"trajectory file {args.trajectory}", dur, ref)
     return sc, dur
 
 

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from offboard.sim import COL, SimLog
+from offboard.runlog import COL, SimLog
 
 #: Paper Table 2 (sign(.) switching): RMS (m or rad) and ISE (m^2 s or rad^2 s).
 PAPER_TABLE2: dict[str, tuple[float, float]] = {

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from offboard.outputs import write_atomic, write_json_atomic, write_text_atomic
-from offboard.sim import COL, LOG_COLUMNS, SimLog
+from offboard.runlog import COL, LOG_COLUMNS, SimLog
 
 #: Columns written to timeseries.csv (all of them) and the decimation to about this rate.
 TIMESERIES_RATE_HZ = 100.0

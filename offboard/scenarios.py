@@ -1,4 +1,10 @@
-"""Named scenarios: reference + initial state + disturbances + duration. Rationale in ``docs/scenarios.md``.
+"""Named scenarios: reference + duration, and the plant's start and disturbances as plain numbers. Rationale in
+``docs/scenarios.md``.
+
+Plant-free: ``slung fly`` and ``slung replay`` take the reference part (name, description, duration, reference,
+arrival and disturbance times) from here without loading the simulator (``sim_bridge``). The simulation part
+(initial plant state, disturbances) is only described here (``offboard.runlog.PlantSetup``); the simulation
+harness builds it (``offboard.sim.plant_scenario``, called by ``offboard.sim.run``).
 
 - ``paper``: the paper's simulation study (Section 4) as far as its text and figures pin it down: Table 1
   vehicle, 50 s (Table 2's ISE/RMS^2 ratios), hover at 1 m with the load at rest, a smooth climb to 2 m
@@ -18,9 +24,7 @@ from collections.abc import Callable
 from estimators.cable import cable_from_spherical
 from estimators.errors import UserError
 from offboard import reference as ref
-from offboard.sim import Scenario
-from sim_bridge import dynamics
-from sim_bridge.disturbances import DisturbanceSpec, RandomDisturbance
+from offboard.runlog import PlantSetup, Scenario
 
 PAPER_DURATION_S = 50.0
 PAPER_DISTURBANCE_START_S = 25.0
@@ -36,16 +40,14 @@ def paper(duration: float | None = None, seed: int = 0) -> Scenario:
         psi=ref.SmoothStep(0.0, PAPER_HEADING_RAD, 0.0, 3.0),
         duration=T,
     )
-    spec = DisturbanceSpec(start=PAPER_DISTURBANCE_START_S)
     return Scenario(
         name="paper",
         description="Table 1 vehicle: climb 1->2 m (0-5 s), heading 0->0.5 rad (0-3 s), figure-eight 1.5 m x 0.75 m "
         "period 20 s from 5 s, random bounded disturbances from 25 s",
         duration=T,
         reference=reference,
-        initial_state=dynamics.make_state(position=(0.0, 0.0, 1.0)),
-        disturbance=RandomDisturbance(spec, seed),
-        disturbance_start=spec.start,
+        disturbance_start=PAPER_DISTURBANCE_START_S,
+        setup=PlantSetup(position=(0.0, 0.0, 1.0), disturbance="paper", seed=seed),
     )
 
 
@@ -58,8 +60,8 @@ def rest_to_rest(duration: float | None = None, seed: int = 0) -> Scenario:
         description="3 m along x in 2.5 s at 2 m height (from t = 1 s), then hover",
         duration=T,
         reference=move.replace(duration=T),
-        initial_state=dynamics.make_state(position=(0.0, 0.0, 2.0)),
         arrival_time=3.5,
+        setup=PlantSetup(position=(0.0, 0.0, 2.0), seed=seed),
     )
 
 
@@ -72,8 +74,8 @@ def hover(duration: float | None = None, seed: int = 0) -> Scenario:
         description="hold at 1 m, load released at 0.2 rad swing",
         duration=T,
         reference=ref.hover(0.0, 0.0, 1.0).replace(duration=T),
-        initial_state=dynamics.make_state(position=(0.0, 0.0, 1.0), cable=r, cable_rate=rd),
         arrival_time=0.0,
+        setup=PlantSetup(position=(0.0, 0.0, 1.0), cable=r, cable_rate=rd, seed=seed),
     )
 
 
@@ -86,7 +88,7 @@ def circle(duration: float | None = None, seed: int = 0) -> Scenario:
         description="load circle of 1 m radius, period 10 s, at 2 m",
         duration=T,
         reference=c.replace(duration=T),
-        initial_state=dynamics.make_state(position=(1.0, 0.0, 2.0)),
+        setup=PlantSetup(position=(1.0, 0.0, 2.0), seed=seed),
     )
 
 
@@ -99,7 +101,9 @@ SCENARIOS: dict[str, Callable[..., Scenario]] = {
 
 
 def make_scenario(name: str, duration: float | None = None, seed: int = 0) -> Scenario:
-    """Build a scenario by name; UserError for an unknown name or a bad duration."""
+    """Build a scenario by name; UserError for an unknown name or a bad duration. ``seed``: of the simulated
+    disturbances (recorded in ``setup``; a live flight ignores it). Plant-free: ``offboard.sim.run`` builds the
+    plant's side."""
     factory = SCENARIOS.get(name)
     if factory is None:
         raise UserError(f"unknown scenario {name!r} (known: {', '.join(SCENARIOS)})")

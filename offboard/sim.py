@@ -14,8 +14,8 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any, Protocol
+from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -24,103 +24,39 @@ from estimators.control_state import ControlState
 from estimators.flatness import FlatConstants, flat_chain, flat_constants, world_tilt
 from estimators.vehicle import Vehicle
 from offboard import smc
+from offboard.runlog import COL, LOG_COLUMNS, Disturbance, PlantSetup, ReferenceLike, Scenario, SimConfig, SimLog
 from sim_bridge import dynamics
 
+# The run records live in the plant-free ``offboard.runlog`` (the live flight path reads them without loading the
+# simulator); they are re-exported here for the simulation's users.
+__all__ = ["COL", "LOG_COLUMNS", "Disturbance", "PlantSetup", "ReferenceLike", "Scenario", "SimConfig", "SimLog",
+           "plant_scenario", "run", "truth_control_state"]
+
 _LOG = logging.getLogger(__name__)
+_DEFAULT_CONFIG = SimConfig()  # frozen: safe as a default argument
 
 
-class ReferenceLike(Protocol):
-    """What the loop needs of a reference (``offboard.reference``)."""
+def plant_scenario(scenario: Scenario) -> Scenario:
+    """``scenario`` with its simulation part built: the initial plant state and the disturbance from the plain
+    numbers of ``scenario.setup`` (``offboard.runlog.PlantSetup``), unless the scenario already carries an
+    ``initial_state``. The named scenarios (``offboard.scenarios``) are plant-free; this is where the plant's
+    side of them is made. ValueError for a scenario with neither."""
+    if scenario.initial_state is not None:
+        return scenario
+    s = scenario.setup
+    if s is None:
+        raise ValueError(f"scenario {scenario.name!r} has no initial plant state and no plant setup")
+    disturbance = scenario.disturbance
+    if s.disturbance == "paper":
+        from sim_bridge.disturbances import DisturbanceSpec, RandomDisturbance
 
-    def sample(self, t: float) -> Any: ...
-
-
-#: disturbance(t) -> (force on vehicle xyz N world, force on load xyz N world, torque xyz N m body)
-Disturbance = Callable[[float], tuple[float, ...]]
-
-
-@dataclass
-class Scenario:
-    """A named closed-loop experiment: reference, initial state, disturbances, duration (SI units).
-
-    initial_state: 18-float plant state (``sim_bridge.dynamics``). arrival_time: for point-to-point
-    scenarios, the time at which the reference comes to rest (residual swing and settling are measured
-    after it). disturbance_start: time at which disturbances begin (metrics report errors after it).
-    """
-
-    name: str
-    description: str
-    duration: float
-    reference: ReferenceLike
-    initial_state: list[float]
-    disturbance: Disturbance | None = None
-    disturbance_start: float | None = None
-    arrival_time: float | None = None
-    extra: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class SimConfig:
-    """How to run a scenario.
-
-    plant_dt: RK4 step (s); control_rate: controller rate (Hz), plant_dt must divide its period;
-    attitude_model: ``"paper"`` (eq. (13), reproduces the paper) or ``"rigid"``;
-    sensors: ``None`` for the true state, else a preset of ``sim_bridge.sensors``; estimator: ``"truth"``
-    or ``"kf"``; load_sensor: whether a cable-angle sensor is fitted; seed: seeds sensors and disturbances.
-    """
-
-    plant_dt: float = 0.001
-    control_rate: float = 1000.0
-    attitude_model: str = "paper"
-    sensors: str | None = None
-    estimator: str = "truth"
-    load_sensor: bool = True
-    seed: int = 0
-
-
-# Columns of the log, in order. Units: SI, radians, model frame (world NWU z up).
-LOG_COLUMNS: tuple[str, ...] = (
-    "t",
-    "x", "y", "z", "vx", "vy", "vz",
-    "phi", "theta", "psi", "phi_rate", "theta_rate", "psi_rate",
-    "r1", "r2", "r3", "r1_rate", "r2_rate", "r3_rate",
-    "alpha", "beta", "alpha_x", "alpha_y",
-    "Fx", "Fy",
-    "Fx_ref", "Fy_ref", "z_ref", "psi_ref",
-    "Fx_ref_rate", "Fy_ref_rate", "z_ref_rate", "psi_ref_rate",
-    "e_Fx", "e_Fy", "e_z", "e_psi",
-    "u", "tau_phi", "tau_theta", "tau_psi",
-    "s_z", "s_psi", "sigma_x", "sigma_y",
-    "saturated",
-    "tension",
-    "dist_fx", "dist_fy", "dist_fz", "dist_tpsi",
-    "load_x", "load_y", "load_z",
-    # estimate minus truth (zero when the controller runs on the true state)
-    "est_alpha_x", "est_alpha_y", "est_alpha_x_rate", "est_alpha_y_rate",
-    "est_Fx0", "est_Fx1", "est_Fx2", "est_Fx3", "est_Fx4", "est_Fx5",
-    "est_Fy0", "est_Fy1", "est_Fy2", "est_Fy3", "est_Fy4", "est_Fy5",
-    "est_z", "est_psi",
-    "nees",
-)
-COL = {name: i for i, name in enumerate(LOG_COLUMNS)}
-
-
-@dataclass
-class SimLog:
-    """The logged run: ``data[k, COL[name]]`` at controller tick k, plus run facts."""
-
-    data: np.ndarray
-    scenario: Scenario
-    config: SimConfig
-    vehicle: Vehicle
-    wall_time: float
-    slack_steps: int
-    min_tension: float
-    estimator_stats: dict[str, int] = field(default_factory=dict)
-
-    def column(self, name: str) -> np.ndarray:
-        """One logged signal over time."""
-        return self.data[:, COL[name]]
+        start = scenario.disturbance_start
+        spec = DisturbanceSpec() if start is None else DisturbanceSpec(start=start)
+        disturbance = RandomDisturbance(spec, s.seed)
+    elif s.disturbance is not None:
+        raise ValueError(f"scenario {scenario.name!r}: unknown disturbance {s.disturbance!r} (known: paper)")
+    state = dynamics.make_state(position=s.position, cable=s.cable, cable_rate=s.cable_rate)
+    return replace(scenario, initial_state=state, disturbance=disturbance)
 
 
 def truth_control_state(x: list[float], k: FlatConstants) -> ControlState:
@@ -138,12 +74,14 @@ def run(
     scenario: Scenario,
     vehicle: Vehicle,
     params: smc.ControllerParams,
-    config: SimConfig = SimConfig(),
+    config: SimConfig = _DEFAULT_CONFIG,
     progress: Callable[[float], None] | None = None,
 ) -> SimLog:
     """Simulate ``scenario`` with the true plant ``vehicle`` and controller ``params`` (whose nominal
     vehicle may differ, for robustness studies). Returns the full log; never raises on divergence (the
-    log then shows it), but stops early if the state becomes non-finite."""
+    log then shows it), but stops early if the state becomes non-finite. A named scenario's simulation part
+    (initial plant state, disturbances) is built here (:func:`plant_scenario`)."""
+    scenario = plant_scenario(scenario)
     if not (config.plant_dt > 0 and config.control_rate > 0):
         raise ValueError("plant_dt and control_rate must be > 0")
     substeps = round(1.0 / (config.control_rate * config.plant_dt))
@@ -171,6 +109,7 @@ def run(
         )
 
     data = np.full((n_ticks, len(LOG_COLUMNS)), np.nan)
+    assert scenario.initial_state is not None  # plant_scenario built it
     x = list(scenario.initial_state)
     memory = smc.ControllerMemory()
     dist = scenario.disturbance
