@@ -333,12 +333,16 @@ def _profile(ts: np.ndarray, J: np.ndarray, v: Vehicle) -> dict[str, np.ndarray]
     second = (a * add).sum(axis=1) + (ad * ad).sum(axis=1)  # d^2/dt^2 of |a|^2 / 2
     acom_h = F[:, :, 2] + (M / Mt) * l * F[:, :, 4] / g
     acom_z = z2 + (m / Mt) * l * second
-    thrust = Mt * np.sqrt(acom_h[:, 0] ** 2 + acom_h[:, 1] ** 2 + (g + acom_z) ** 2)
+    # signed: negative when the force would have to point downward (a descent faster than free fall), which a
+    # quadrotor cannot produce at any tilt it flies
+    thrust = np.copysign(Mt * np.sqrt(acom_h[:, 0] ** 2 + acom_h[:, 1] ** 2 + (g + acom_z) ** 2), g + acom_z)
     # tilt per Euler axis as the controller's chain defines it: theta = t1, phi = -t2
     tilt = np.maximum(np.abs(t1), np.abs(t2))
     linear = np.maximum(swing, np.hypot(t1, t2))
     # cable tension: m |xi_p'' + g e3|, load height acceleration z'' + l (a.a'' + |a'|^2)
-    tension = m * np.sqrt(F[:, 0, 2] ** 2 + F[:, 1, 2] ** 2 + (g + z2 + l * second) ** 2)
+    # signed like the thrust: negative when the load would have to be pushed down (a slack cable)
+    gz_load = g + z2 + l * second
+    tension = np.copysign(m * np.sqrt(F[:, 0, 2] ** 2 + F[:, 1, 2] ** 2 + gz_load**2), gz_load)
     # motor thrusts (X mixer of sim_bridge/airframe.py)
     arm = v.arm_length / math.sqrt(2.0)
     kx, ky, kz = tau_phi / (4.0 * arm), tau_theta / (4.0 * arm), tau_psi / (4.0 * v.yaw_moment_coefficient)
@@ -398,7 +402,9 @@ def _evaluate(ts: np.ndarray, J: np.ndarray, v: Vehicle, lim: FeasibilityLimits,
     add("linearity", "largest swing or tilt", "rad", linear, math.inf, LINEARIZATION_WARN_RAD,
         f"beyond {LINEARIZATION_WARN_RAD:g} rad the controller's tangent linearization is off by more than "
         "2-4 % (tan a, sin a vs a)", hard=False)
-    tr = lim.thrust_reserve
+    # reserves for the switching terms, capped at half the limit: a switching amplitude that takes more than half
+    # of the authority is a matter of the controller's tuning, which no reference can fix
+    tr = min(lim.thrust_reserve, 0.5 * (lim.thrust_max - lim.thrust_min))
     add("thrust", "collective thrust", "N", thrust, lim.thrust_max, lim.thrust_max - tr,
         f"leaves less than the height loop's switching reserve {tr:.2g} N below the limit {lim.thrust_max:.3g} N")
     add("thrust_min", "collective thrust", "N", thrust, lim.thrust_min, lim.thrust_min + tr,
@@ -406,7 +412,8 @@ def _evaluate(ts: np.ndarray, J: np.ndarray, v: Vehicle, lim: FeasibilityLimits,
         lower=True)
     for name, label, vals, k in (("roll_torque", "roll torque", tau_phi, 0), ("pitch_torque", "pitch torque",
                                  tau_theta, 1), ("yaw_torque", "yaw torque", tau_psi, 2)):
-        tm, rs = lim.torque_max[k], lim.torque_reserve[k]
+        tm = lim.torque_max[k]
+        rs = min(lim.torque_reserve[k], 0.5 * tm)
         add(name, label, "N m", np.abs(vals), tm, tm - rs,
             f"leaves less than the switching term's {rs:.2g} N m below the limit {tm:.3g} N m")
     fmax = v.motor_thrust_max
