@@ -7,7 +7,9 @@ and the two Kalman operations on caller-owned arrays ``x`` (batch, n) and ``P`` 
 
 Discretization: ``Phi = expm(A h)`` and the zero-order-hold input matrix ``Gamma = int_0^h expm(A s) B ds``
 from one matrix exponential of the augmented matrix; the process-noise covariance ``Q(h)`` by Van Loan's
-method (``filterpy.common.van_loan_discretization``) from the diagonal continuous spectral densities.
+method (the arithmetic of ``filterpy.common.van_loan_discretization``, done here: importing ``filterpy.common``
+imports ``scipy.stats``, which costs about half a second at every start of ``slung fly`` / ``slung replay``) from the
+diagonal continuous spectral densities.
 """
 
 from __future__ import annotations
@@ -16,8 +18,20 @@ from collections.abc import Sequence
 from typing import ClassVar, NamedTuple
 
 import numpy as np
-from filterpy.common import van_loan_discretization
 from scipy.linalg import expm
+
+
+def van_loan_discretization(f: np.ndarray, g: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(Phi, Q)`` of ``x' = F x + G u`` (u unit white noise) for a step ``dt`` by Van Loan's method: the same
+    operations, in the same order, as ``filterpy.common.van_loan_discretization`` (identical results)."""
+    n = f.shape[0]
+    a = np.zeros((2 * n, 2 * n))
+    a[0:n, 0:n] = -f.dot(dt)
+    a[0:n, n:2 * n] = g.dot(g.T).dot(dt)
+    a[n:2 * n, n:2 * n] = f.T.dot(dt)
+    b = expm(a)
+    sigma = b[n:2 * n, n:2 * n].T
+    return sigma, sigma.dot(b[0:n, n:2 * n])
 
 
 class Discrete(NamedTuple):
