@@ -28,6 +28,7 @@ Use::
 from __future__ import annotations
 
 import os
+import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +46,35 @@ RESYNC_WINDOW_US = 24 * 3600 * 1_000_000
 EPOCH_MIN_US = 946_684_800 * 1_000_000
 EPOCH_MAX_US = 4_102_444_800 * 1_000_000
 _SIGNED = 0x01
+_U16 = struct.Struct("<H")
+_CRC = getattr(dialect, "mcrf4xx", None)  # fastcrc's CRC-16/MCRF4XX, which pymavlink's x25crc uses when installed
+
+
+class _MsgSpec:
+    """What :meth:`TlogReader._decode` needs of one message class, computed once per message id: per constructor
+    argument (pymavlink's ``orders``) the index of its first unpacked value, its length and its kind (0 a number,
+    1 an array -> list, 2 a string -> NUL-stripped bytes), exactly as ``MAVLink.decode`` builds them."""
+
+    __slots__ = ("cls", "extra", "plain", "size", "slots", "unpack")
+
+    def __init__(self, cls: Any) -> None:
+        self.cls = cls
+        self.extra = bytes((cls.crc_extra,))
+        self.unpack = cls.unpacker.unpack
+        self.size = cls.unpacker.size
+        lengths = cls.lengths
+        sample = cls.unpacker.unpack(bytes(self.size))  # the unpacked types depend on the format only
+        slots = []
+        for order in cls.orders:
+            tip, n = sum(lengths[:order]), lengths[order]
+            kind = 2 if isinstance(sample[tip], bytes) else 0 if n == 1 else 1
+            slots.append((tip, n, kind))
+        self.slots = tuple(slots)
+        #: no arrays and no strings: the arguments are the unpacked values reordered
+        self.plain = tuple(tip for tip, _, kind in slots) if all(k == 0 for _, _, k in slots) else None
+
+
+_SPECS: dict[int, _MsgSpec] = {}
 
 
 @dataclass
@@ -123,6 +153,62 @@ class TlogReader:
         return cls(data, progress)
 
     # ------------------------------------------------------------------------------------------------------
+    def _decode(self, i: int, length: int) -> Any:
+        """:meth:`_try_decode` with pymavlink's ``MAVLink.decode`` done here for the common case (an unsigned
+        packet of a known id, with fastcrc installed): the same checks (CRC with CRC_EXTRA; the framing length is
+        the header's by construction of :func:`_packet_length`), the same payload handling (zero-padded to the
+        message size) and the same message object, attribute by attribute, at about 60 % of the cost. Everything
+        else goes through pymavlink itself."""
+        d = self.data
+        if d[i] == STX_V2:
+            if d[i + 2] or _CRC is None:  # signed or unknown incompat flags: pymavlink's path
+                return self._try_decode(i, length)
+            msg_id = d[i + 7] | (d[i + 8] << 8) | (d[i + 9] << 16)
+            head = 10
+        else:
+            msg_id = d[i + 5]
+            head = 6
+            if _CRC is None:
+                return self._try_decode(i, length)
+        spec = _SPECS.get(msg_id)
+        if spec is None:
+            cls = dialect.mavlink_map.get(msg_id)
+            if cls is None:
+                return "unknown"
+            spec = _SPECS[msg_id] = _MsgSpec(cls)
+        if dialect.MAVLINK_IGNORE_CRC:
+            return self._try_decode(i, length)
+        end = i + length - 2
+        crc = _U16.unpack_from(d, end)[0]
+        if _CRC(spec.extra, _CRC(d[i + 1:end], 0xFFFF)) != crc:
+            return None
+        payload = d[i + head:end]
+        size = spec.size
+        if len(payload) < size:
+            payload += bytes(size - len(payload))
+        elif len(payload) > size:
+            payload = payload[:size]
+        t = spec.unpack(payload)
+        if spec.plain is not None:
+            args = [t[o] for o in spec.plain]
+        else:
+            args = [t[tip] if kind == 0 else list(t[tip:tip + n]) if kind == 1 else t[tip].rstrip(b"\x00")
+                    for tip, n, kind in spec.slots]
+        try:
+            m = spec.cls(*args)
+        except Exception:
+            return self._try_decode(i, length)
+        msgbuf = bytearray(d[i:i + length])
+        m._signed = False
+        m._msgbuf = msgbuf
+        m._payload = msgbuf[6:-2]
+        m._crc = crc
+        if head == 10:
+            m._header = dialect.MAVLink_header(msg_id, 0, d[i + 3], d[i + 1], d[i + 4], d[i + 5], d[i + 6])
+        else:
+            m._header = dialect.MAVLink_header(msg_id, 0, 0, d[i + 1], d[i + 2], d[i + 3], d[i + 4])
+        return m
+
     def _try_decode(self, i: int, length: int) -> Any:
         """The decoded message at ``data[i : i + length]``: a pymavlink message, the string "unknown" for an
         id the dialect does not know, or None when the packet fails pymavlink's checks (CRC, length)."""
@@ -201,9 +287,9 @@ class TlogReader:
                         st.truncated += 1
                         return
                 else:
-                    msg = self._try_decode(k, length)
+                    msg = self._decode(k, length)
                     end = k + length
-                    if msg is not None and msg != "unknown":
+                    if msg is not None and type(msg) is not str:  # not "unknown"
                         last_ts = ts
                         st.packets += 1
                         if d[k] == STX_V1:
