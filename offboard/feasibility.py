@@ -204,14 +204,23 @@ class FeasibilityResult:
 # grid
 # ----------------------------------------------------------------------------------------------------------------
 def _sample_grid(reference: Any, ts: np.ndarray) -> np.ndarray:
-    """Array (len(ts), 4, 7): channels fx, fy, z, psi, derivative orders 0..6."""
-    out = np.empty((len(ts), 4, 7))
+    """Array (len(ts), 4, 8): channels fx, fy, z, psi, derivative orders 0..7.
+
+    Order 7 is exact when the reference offers ``jets(t, n)`` (``offboard.reference.Composite``: truncated Taylor
+    coefficients), NaN otherwise (then differenced from order 6 on the grid)."""
+    out = np.full((len(ts), 4, 8), np.nan)
+    jets = getattr(reference, "jets", None)
+    if callable(jets):
+        fact = np.array([math.factorial(k) for k in range(8)])
+        for i, t in enumerate(ts.tolist()):
+            out[i] = np.array([j.c for j in jets(t, 8)]) * fact
+        return out
     for i, t in enumerate(ts.tolist()):
         s = reference.sample(t)
-        out[i, 0] = s.fx[:7]
-        out[i, 1] = s.fy[:7]
-        out[i, 2] = s.z[:7]
-        out[i, 3] = s.psi[:7]
+        out[i, 0, :7] = s.fx[:7]
+        out[i, 1, :7] = s.fy[:7]
+        out[i, 2, :7] = s.z[:7]
+        out[i, 3, :7] = s.psi[:7]
     return out
 
 
@@ -224,8 +233,8 @@ def _pieces(reference: Any, duration: float) -> list[float]:
 
 def _omega_estimate(jets: np.ndarray) -> float:
     """Largest ratio max|f^(k+1)| / max|f^(k)| over channels and orders k = 1..5 (rad/s): exactly omega for a
-    sinusoid of frequency omega, about (k + 1..15) / T for a degree-15 step of duration T."""
-    peak = np.abs(jets).max(axis=0)  # (4, 7)
+    sinusoid of frequency omega, 13-15 / T for the degree-15 step of duration T."""
+    peak = np.abs(jets[:, :, :7]).max(axis=0)  # (4, 7)
     best = 0.0
     for ch in range(4):
         scale = peak[ch, 1:].max()
@@ -293,7 +302,7 @@ def check_reference(reference: Any, duration: float, vehicle: Vehicle, limits: F
             raise ValueError(f"step must be a finite number > 0 s, got {step!r}")
         ts = np.unique(np.concatenate([np.arange(0.0, duration, step), [duration]]))
     J = _sample_grid(reference, ts)
-    h = float(np.min(np.diff(ts))) if len(ts) > 1 else 0.0
+    h = float(np.max(np.diff(ts))) if len(ts) > 1 else 0.0
     return _evaluate(ts, J, vehicle, limits, h)
 
 
@@ -313,8 +322,11 @@ def _profile(ts: np.ndarray, J: np.ndarray, v: Vehicle) -> dict[str, np.ndarray]
     n = F[:, :, 4] / c + F[:, :, 2] / g
     nd = F[:, :, 5] / c + F[:, :, 3] / g
     ndd = F[:, :, 6] / c + F[:, :, 4] / g
-    # n''' needs F^(7): central differences of F^(6) on the grid (the references are C^7, so it is continuous)
-    F7 = np.gradient(F[:, :, 6], ts, axis=0) if len(ts) > 2 else np.zeros_like(ndd)
+    # n''' needs F^(7): exact from the jets, else central differences of F^(6) on the grid (the references are
+    # C^7, so it is continuous)
+    F7 = F[:, :, 7]
+    if not np.all(np.isfinite(F7)):
+        F7 = np.gradient(F[:, :, 6], ts, axis=0) if len(ts) > 2 else np.zeros_like(ndd)
     nddd = F7 / c + F[:, :, 5] / g
 
     swing = np.hypot(a[:, 0], a[:, 1])
