@@ -349,6 +349,12 @@ class Autopilot:
         if reason:
             self.statustext(WARNING, reason)
 
+    def _hold_altitude(self, alt: float) -> None:
+        """Hold the current horizontal position at ``alt`` (m above home, model frame z up)."""
+        self.hold_pos = (self.hold_pos[0], self.hold_pos[1], alt)
+        self.z_target = alt
+        self.braking = False  # a setpoint is given: no 'stop first, then hold where stopped'
+
     def _can_enter(self, mode: Mode) -> tuple[bool, int, str]:
         """Mode-entry rules of the real autopilots: (allowed, MAV_RESULT if not, STATUSTEXT reason)."""
         ready = self.t_us >= self.est_ready_us
@@ -851,6 +857,9 @@ class Autopilot:
                            False, z_up=up)
             if x[2] >= alt - 0.1:
                 self._set_mode(self.fl.by_name["AUTO.LOITER"])
+                # PX4's navigator ends the take-off with a loiter setpoint AT the take-off altitude, which
+                # Hold keeps: not where the vehicle was when it came within the acceptance band
+                self._hold_altitude(alt)
         elif kind == "land":
             self._land(x, dt, on_ground)
         elif kind == "rtl":
@@ -970,7 +979,8 @@ class Autopilot:
         if sub == "takeoff":
             self._position(x, self.hold_pos, (0.0, 0.0, 0.0), self.hold_yaw, dt, False)
             if x[2] >= self.takeoff_alt - 0.1:
-                self.guided_sub = "hold"
+                self.guided_sub = "hold"  # ArduPilot's GUIDED keeps the take-off's target altitude
+                self._hold_altitude(self.takeoff_alt)
             return
         self._position(x, self.hold_pos, (0.0, 0.0, 0.0), self.hold_yaw, dt, on_ground)
 

@@ -442,3 +442,32 @@ def test_px4_every_mode_has_its_heartbeat_encoding() -> None:
         e.command(512, 0)
         assert e.recv("HEARTBEAT", 2.0).custom_mode == 196608
         e.stop()
+
+
+@pytest.mark.parametrize(("flavor", "target"), [("px4", 2.5), ("ardupilot", 1.5)])
+def test_takeoff_ends_holding_the_target_altitude(flavor: str, target: float) -> None:
+    """PX4's take-off (to MIS_TAKEOFF_ALT, 2.5 m) hands over to Hold at the take-off altitude, ArduPilot's GUIDED
+    take-off (param7 above home) keeps its target: not 0.1 m below it, where the climb entered the acceptance band."""
+    with Emu("--flavor", flavor, "--est-ready", "0.2") as e:
+        e.wait_heartbeat()
+        e.wait_ready()
+        if flavor == "px4":
+            assert e.command(MAV_CMD_ARM, 1, 0).result == 0
+            assert e.command(22, 0, 0, 0, 0, 0, 0, float("nan")).result == 0
+            assert e.recv("HEARTBEAT", 10.0, cond=lambda m: m.custom_mode == AUTO_LOITER and m.base_mode & 128)
+        else:
+            assert e.command(MAV_CMD_DO_SET_MODE, 1, 4).result == 0  # GUIDED
+            assert e.command(MAV_CMD_ARM, 1, 0).result == 0
+            assert e.command(22, 0, 0, 0, 0, 0, 0, target).result == 0
+            assert e.recv("LOCAL_POSITION_NED", 10.0, cond=lambda m: -m.z > target - 0.1) is not None
+        time.sleep(3.0)  # settle in the hold
+        e.drain()  # what arrived while sleeping
+        zs = []
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            m = e.recv("LOCAL_POSITION_NED", 0.5)
+            if m is not None:
+                zs.append(-m.z)
+        e.stop()
+    assert len(zs) >= 3  # LOCAL_POSITION_NED streams at 50 Hz (PX4) / 5 Hz (ArduPilot)
+    assert abs(sum(zs) / len(zs) - target) < 0.03, (sum(zs) / len(zs), target)
