@@ -120,16 +120,17 @@ class FeasibilityLimits:
         c = v.total_mass * v.gravity**2 / (v.mass_vehicle * v.cable_length)
         thrust_min, thrust_max = params.thrust_min, params.thrust_max
         lag = v.motor_time_constant
+        max_tilt, max_rate, rate_hard = params.max_tilt, math.inf, False
         if mapping is not None:
+            # the normalized thrust clip applies to both outputs; the tilt and rate clips and the autopilot's
+            # attitude / rate loops only to attitude output (actuator output drives the mixer directly)
             thrust_min = max(thrust_min, mapping.thrust_min * v.thrust_max)
             thrust_max = min(thrust_max, mapping.thrust_max * v.thrust_max)
-            max_tilt, max_rate = mapping.max_tilt, mapping.max_rate
-            rate_hard = mapping.output == "attitude" and mapping.mask == "rates"
             if mapping.output == "attitude":
+                max_tilt, max_rate = mapping.max_tilt, mapping.max_rate
+                rate_hard = mapping.mask == "rates"
                 bw = (18.0, 18.0) if autopilot is None else autopilot.rate_bandwidth[:2]
                 lag += 1.0 / min(bw)
-        else:
-            max_tilt, max_rate, rate_hard = params.max_tilt, math.inf, False
         I1, I2, I3 = v.inertia
         return cls(
             thrust_min=thrust_min,

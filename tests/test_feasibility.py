@@ -303,6 +303,10 @@ def test_limits_from_config_read_the_controller_mapping_and_autopilot() -> None:
     c = DEFAULT.total_mass * DEFAULT.gravity**2 / (DEFAULT.mass_vehicle * DEFAULT.cable_length)
     assert lim.torque_reserve[0] == pytest.approx(DEFAULT.inertia[0] * params.gains.rho_F / c)
     assert lim.inner_loop_lag == pytest.approx(1.0 / 18.0 + DEFAULT.motor_time_constant)
+    act = FeasibilityLimits.from_config(params, MappingConfig(output="actuator"), 0.8, AutopilotModel())
+    assert act.max_tilt == params.max_tilt and math.isinf(act.max_rate)  # no attitude setpoint to clip
+    assert act.thrust_max == pytest.approx(0.98 * DEFAULT.thrust_max)
+    assert act.inner_loop_lag == DEFAULT.motor_time_constant
     direct = FeasibilityLimits.from_config(params)  # slung sim: no mapping, no setpoint clips
     assert direct.max_tilt == params.max_tilt and math.isinf(direct.max_rate)
     assert direct.inner_loop_lag == DEFAULT.motor_time_constant
