@@ -30,7 +30,9 @@ swing 0.739 rad nominal, 0.732 in ``slung sim``, against a geometric ``atan(F''/
 
 This is a nominal check: open loop, on the linearized model, with a perfect estimate and no disturbance. A pass
 does not promise that the closed loop will fly the reference (tracking errors, disturbances, the estimator and the
-autopilot's inner loops all add to the demand); a failure means that even a perfect controller could not.
+autopilot's inner loops all add to the demand); a failure means that even a perfect controller could not. There is
+no check of the autopilot's inner-loop bandwidth: the one tried (the unmodelled rate-loop and motor lag as an F^(6)
+disturbance) did not predict the emulator's flights, see ``docs/references.md``.
 """
 
 from __future__ import annotations
@@ -51,10 +53,6 @@ from estimators.vehicle import Vehicle
 LINEARIZATION_WARN_RAD = 0.35
 #: Fraction of a hard limit above which a demand is reported as a warning (limits without a better-founded margin).
 WARN_FRACTION = 0.8
-#: Extra horizontal tracking error (m) from the unmodelled inner-loop lag above which a warning is given: the size of
-#: the largest closed-loop error of the bundled aggressive scenario (rest-to-rest: 5.0 cm in slung sim), so a warning
-#: means the lag alone could double it.
-LAG_WARN_ERROR_M = 0.05
 #: Grid: step = GRID_OMEGA_STEP / omega, omega the ratio estimate of :func:`_omega_estimate`. A peak whose local
 #: angular frequency (sqrt(|f''| / |f|) at the peak) is w is sampled within a relative error (w h)^2 / 8; the sharpest
 #: peak of the 6th derivative of the degree-15 step (the torque) has w about twice the ratio estimate (its extrema are
@@ -83,12 +81,6 @@ class FeasibilityLimits:
     thrust_reserve: thrust kept free for the height loop's switching term, ``rho_z M_t``, N.
     torque_reserve: torque kept free for the switching terms, ``(I_phi rho_F / c, I_theta rho_F / c,
     I_psi rho_psi)``, N m.
-    switching_authority: ``rho_F``, the largest matched F^(6) disturbance the horizontal sliding term rejects, m/s^6.
-    position_gain: ``K0``, the horizontal law's gain on the integral of the error (1/s^6): a slowly varying matched
-    disturbance d in F^(6) that the switching term does not cancel leaves an error of about d / K0 in F.
-    inner_loop_lag: lag between the commanded and the delivered torque that the controller does not model, s
-    (rate loop ``1 / B`` plus motor time constant for attitude output, the motor alone for actuator output); 0
-    disables the lag check.
     """
 
     thrust_min: float
@@ -100,37 +92,30 @@ class FeasibilityLimits:
     swing_limit: float = 0.8
     thrust_reserve: float = 0.0
     torque_reserve: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    switching_authority: float = math.inf
-    position_gain: float = math.inf
-    inner_loop_lag: float = 0.0
 
     @classmethod
-    def from_config(cls, params: Any, mapping: Any = None, swing_limit_rad: float = 0.8,
-                    autopilot: Any = None) -> FeasibilityLimits:
+    def from_config(cls, params: Any, mapping: Any = None, swing_limit_rad: float = 0.8) -> FeasibilityLimits:
         """Limits from ``offboard.smc.ControllerParams`` (thrust and torque clips, gains), an optional
         ``offboard.command_mapping.MappingConfig`` (tilt and rate clips, normalized thrust range, output kind) and
-        ``AutopilotModel`` (rate-loop bandwidth), and the loop's swing limit (``LoopConfig.swing_limit_rad``).
+        the loop's swing limit (``LoopConfig.swing_limit_rad``).
 
-        Without a mapping (``slung sim``: the controller drives the plant directly, no setpoint clips) the tilt is
-        limited by ``params.max_tilt`` (where the height law stops dividing by ``g_z``), the rate check is skipped
-        and the unmodelled lag is the motors' alone.
+        Without a mapping (``slung sim``: the controller drives the plant directly, no setpoint clips) or with
+        actuator output (no attitude setpoint) the tilt is limited by ``params.max_tilt`` (where the height law stops
+        dividing by ``g_z``) and the rate check is skipped.
         """
         v: Vehicle = params.vehicle
         g = params.gains
         c = v.total_mass * v.gravity**2 / (v.mass_vehicle * v.cable_length)
         thrust_min, thrust_max = params.thrust_min, params.thrust_max
-        lag = v.motor_time_constant
         max_tilt, max_rate, rate_hard = params.max_tilt, math.inf, False
         if mapping is not None:
-            # the normalized thrust clip applies to both outputs; the tilt and rate clips and the autopilot's
-            # attitude / rate loops only to attitude output (actuator output drives the mixer directly)
+            # the normalized thrust clip applies to both outputs, the tilt and rate clips only to attitude output
+            # (actuator output drives the mixer directly)
             thrust_min = max(thrust_min, mapping.thrust_min * v.thrust_max)
             thrust_max = min(thrust_max, mapping.thrust_max * v.thrust_max)
             if mapping.output == "attitude":
                 max_tilt, max_rate = mapping.max_tilt, mapping.max_rate
                 rate_hard = mapping.mask == "rates"
-                bw = (18.0, 18.0) if autopilot is None else autopilot.rate_bandwidth[:2]
-                lag += 1.0 / min(bw)
         I1, I2, I3 = v.inertia
         return cls(
             thrust_min=thrust_min,
@@ -142,9 +127,6 @@ class FeasibilityLimits:
             swing_limit=swing_limit_rad,
             thrust_reserve=g.rho_z * v.total_mass,
             torque_reserve=(I1 * g.rho_F / c, I2 * g.rho_F / c, I3 * g.rho_psi),
-            switching_authority=g.rho_F,
-            position_gain=g.K[0],
-            inner_loop_lag=lag,
         )
 
 
@@ -389,11 +371,9 @@ def nominal_profile(reference: Any, times: Sequence[float], vehicle: Vehicle) ->
 def _evaluate(ts: np.ndarray, J: np.ndarray, v: Vehicle, lim: FeasibilityLimits, h: float) -> FeasibilityResult:
     p = _profile(ts, J, v)
     m, g = v.mass_load, v.gravity
-    c = v.total_mass * g * g / (v.mass_vehicle * v.cable_length)
     swing, tilt, linear, thrust = p["swing"], p["tilt"], p["linearity"], p["thrust"]
     tau_phi, tau_theta, tau_psi, tension = p["tau_phi"], p["tau_theta"], p["tau_psi"], p["tension"]
     tilt_rate = p["tilt_rate"]
-    lag_dist = c * lim.inner_loop_lag * p["tilt_jerk"]
 
     demands: list[Demand] = []
 
@@ -444,11 +424,6 @@ def _evaluate(ts: np.ndarray, J: np.ndarray, v: Vehicle, lim: FeasibilityLimits,
     if math.isfinite(lim.max_rate):
         add("tilt_rate", "tilt rate", "rad/s", tilt_rate, lim.max_rate, F_ * lim.max_rate,
             f"above {F_:.0%} of the setpoint rate clip {lim.max_rate:g} rad/s", hard=lim.rate_limit_hard)
-    if lim.inner_loop_lag > 0.0 and math.isfinite(lim.position_gain):
-        add("lag", "tracking error from inner-loop lag", "m", lag_dist / lim.position_gain, math.inf,
-            LAG_WARN_ERROR_M, f"the {lim.inner_loop_lag * 1e3:.0f} ms of rate-loop and motor lag that the controller "
-            f"does not model may add up to this much tracking error (above {LAG_WARN_ERROR_M * 100:g} cm)",
-            hard=False)
 
     demands.sort(key=lambda d: {"infeasible": 0, "warning": 1, "ok": 2}[d.status])
     msgs = tuple(("infeasible: " if d.status == "infeasible" else "warning: ") + d.why

@@ -13,7 +13,7 @@ import pytest
 from estimators.control_state import ControlState
 from estimators.vehicle import Vehicle
 from offboard import sim, smc
-from offboard.command_mapping import AutopilotModel, MappingConfig
+from offboard.command_mapping import MappingConfig
 from offboard.feasibility import (
     LINEARIZATION_WARN_RAD,
     FeasibilityLimits,
@@ -28,9 +28,8 @@ DEFAULT = Vehicle()
 
 
 def limits_for(vehicle: Vehicle) -> FeasibilityLimits:
-    """The limits `slung fly` flies with: controller clips, default mapping and autopilot, 0.8 rad swing watchdog."""
-    return FeasibilityLimits.from_config(smc.ControllerParams.for_vehicle(vehicle), MappingConfig(), 0.8,
-                                         AutopilotModel())
+    """The limits `slung fly` flies with: controller clips, default mapping, 0.8 rad swing watchdog."""
+    return FeasibilityLimits.from_config(smc.ControllerParams.for_vehicle(vehicle), MappingConfig(), 0.8)
 
 
 def check_scenario(name: str, vehicle: Vehicle = DEFAULT):
@@ -250,7 +249,7 @@ class _SampleOnly:
 
 def test_a_reference_with_only_sample_gives_the_same_verdict() -> None:
     """Without breakpoints and jets the grid is derived from the coarse pass alone and F^(7) is differenced: the
-    peaks agree with the Composite's within 0.5 % (the differenced lag demand within 1 %)."""
+    peaks agree with the Composite's within 0.5 %, and so does the differenced tilt jerk of nominal_profile (1 %)."""
     sc = make_scenario("rest-to-rest")
     lim = limits_for(DEFAULT)
     full = check_reference(sc.reference, sc.duration, DEFAULT, lim)
@@ -258,8 +257,11 @@ def test_a_reference_with_only_sample_gives_the_same_verdict() -> None:
     assert bare.feasible == full.feasible
     assert [d.name for d in bare.warnings] == [d.name for d in full.warnings]
     for d in full.demands:
-        tol = 0.01 if d.name == "lag" else 0.005
-        assert bare.demand(d.name).peak == pytest.approx(d.peak, rel=tol, abs=1e-9), d.name
+        assert bare.demand(d.name).peak == pytest.approx(d.peak, rel=0.005, abs=1e-9), d.name
+    ts = np.linspace(0.0, sc.duration, 2001)
+    exact = nominal_profile(sc.reference, ts, DEFAULT)["tilt_jerk"]
+    differenced = nominal_profile(_SampleOnly(sc.reference), ts, DEFAULT)["tilt_jerk"]
+    assert differenced.max() == pytest.approx(exact.max(), rel=0.01)
 
 
 def test_fast_descent_needs_downward_thrust_and_slackens_the_cable() -> None:
@@ -294,22 +296,19 @@ def _hop():
     return ref, ref.duration
 
 
-def test_limits_from_config_read_the_controller_mapping_and_autopilot() -> None:
+def test_limits_from_config_read_the_controller_and_the_mapping() -> None:
     params = smc.ControllerParams.for_vehicle(DEFAULT)
-    lim = FeasibilityLimits.from_config(params, MappingConfig(max_tilt=0.5, mask="rates"), 0.6, AutopilotModel())
+    lim = FeasibilityLimits.from_config(params, MappingConfig(max_tilt=0.5, mask="rates"), 0.6)
     assert lim.max_tilt == 0.5 and lim.swing_limit == 0.6 and lim.rate_limit_hard
     assert lim.thrust_max == pytest.approx(0.98 * DEFAULT.thrust_max)
     assert lim.torque_max == params.torque_max
     c = DEFAULT.total_mass * DEFAULT.gravity**2 / (DEFAULT.mass_vehicle * DEFAULT.cable_length)
     assert lim.torque_reserve[0] == pytest.approx(DEFAULT.inertia[0] * params.gains.rho_F / c)
-    assert lim.inner_loop_lag == pytest.approx(1.0 / 18.0 + DEFAULT.motor_time_constant)
-    act = FeasibilityLimits.from_config(params, MappingConfig(output="actuator"), 0.8, AutopilotModel())
+    act = FeasibilityLimits.from_config(params, MappingConfig(output="actuator"), 0.8)
     assert act.max_tilt == params.max_tilt and math.isinf(act.max_rate)  # no attitude setpoint to clip
     assert act.thrust_max == pytest.approx(0.98 * DEFAULT.thrust_max)
-    assert act.inner_loop_lag == DEFAULT.motor_time_constant
     direct = FeasibilityLimits.from_config(params)  # slung sim: no mapping, no setpoint clips
     assert direct.max_tilt == params.max_tilt and math.isinf(direct.max_rate)
-    assert direct.inner_loop_lag == DEFAULT.motor_time_constant
     # a tighter swing limit turns rest-to-rest's 0.74 rad into a violation
     sc = make_scenario("rest-to-rest")
     r = check_reference(sc.reference, sc.duration, DEFAULT, lim)
