@@ -322,7 +322,7 @@ def write_flight_outputs(out_dir: Path, result: FlightResult, scenario: Scenario
         "output": args.output, "mask": args.mask, "flavour": flavour, "rate_hz": cfg.rate_hz,
         "lockstep": cfg.lockstep, "hover_thrust_norm": result.autopilot.get("hover_thrust_norm"),
         "autopilot": result.autopilot, "origin_xy": list(result.origin), "reference_start_s": t_ref0,
-        "attitude_model": "vehicle", "sensors": "mavlink", "estimator": "kf",
+        "attitude_model": "vehicle", "actuators": "vehicle", "sensors": "mavlink", "estimator": "kf",
         "load_telemetry_seen": result.load_sensor, "vehicle": vehicle.name,
         "trajectory": str(Path(args.trajectory).resolve()) if getattr(args, "trajectory", None) else None,
     })

@@ -110,6 +110,7 @@ def compute(log: SimLog) -> dict[str, Any]:
         "plant_dt_s": log.config.plant_dt,
         "control_rate_hz": log.config.control_rate,
         "attitude_model": log.config.attitude_model,
+        "actuators": log.config.actuators,
         "sensors": log.config.sensors or "truth",
         "estimator": log.config.estimator,
         "load_sensor": log.config.load_sensor,

@@ -80,7 +80,10 @@ class SimConfig:
     plant_dt: RK4 step (s); control_rate: controller rate (Hz), plant_dt must divide its period;
     attitude_model: ``"paper"`` (eq. (13), reproduces the paper) or ``"rigid"``;
     sensors: ``None`` for the true state, else a preset of ``sim_bridge.sensors``; estimator: ``"truth"``
-    or ``"kf"``; load_sensor: whether a cable-angle sensor is fitted; seed: seeds sensors and disturbances.
+    or ``"kf"``; load_sensor: whether a cable-angle sensor is fitted; seed: seeds sensors and disturbances;
+    actuators: ``"ideal"`` (the commanded thrust and torques act on the plant, as in the paper) or ``"mixer"``
+    (they go through the emulator's X mixer: four motors limited to [0, motor_thrust_max] with roll / pitch
+    priority and first-order lag, what the vehicle of ``slung demo`` has).
     """
 
     plant_dt: float = 0.001
@@ -90,6 +93,7 @@ class SimConfig:
     estimator: str = "truth"
     load_sensor: bool = True
     seed: int = 0
+    actuators: str = "ideal"
 
 
 # Columns of the log, in order. Units: SI, radians, model frame (world NWU z up).

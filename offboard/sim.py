@@ -90,6 +90,8 @@ def run(
     control_dt = substeps * config.plant_dt
     n_ticks = math.floor(scenario.duration / control_dt + 1e-9) + 1
 
+    if config.actuators not in ("ideal", "mixer"):
+        raise ValueError(f"unknown actuators {config.actuators!r} (ideal or mixer)")
     p = dynamics.plant_params(vehicle, config.attitude_model)
     k_nominal = flat_constants(params.vehicle)
     k_true = flat_constants(vehicle)
@@ -127,6 +129,12 @@ def run(
     rk4 = dynamics.rk4_step
     tension = dynamics.tension
     u = dynamics.hover_input(p)
+    mixer = None
+    if config.actuators == "mixer":
+        from sim_bridge.airframe import Mixer
+
+        mixer = Mixer(vehicle, config.plant_dt)
+        mixer.reset(0.25 * u[0])  # the motors start at hover
     last_progress = 0
     for tick in range(n_ticks):
         t = tick * control_dt
@@ -144,11 +152,16 @@ def run(
         if estimator is not None:
             estimator.push_command(t, cmd.thrust, (cmd.tau_phi, cmd.tau_theta, cmd.tau_psi))
         _log_tick(data[tick], t, x, truth, est, ref, cmd, u, p, k_true, estimator)
+        if mixer is not None:  # the plant feels the motors' wrench, not the command
+            mixer.allocate(cmd.thrust, cmd.tau_phi, cmd.tau_theta, cmd.tau_psi)
+            u[0:4] = mixer.wrench()
         tens = tension(x, u, p)
         data[tick, COL["tension"]] = tens
         if tick == n_ticks - 1:
             break
         for i in range(substeps):
+            if mixer is not None:  # the motors' thrusts at the end of this plant step act over it (zero-order)
+                u[0:4] = mixer.step()
             x = rk4(x, u, p, config.plant_dt, t + i * config.plant_dt)
             tens = tension(x, u, p)
             if tens <= 0.0:

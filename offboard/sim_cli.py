@@ -40,6 +40,9 @@ def configure(p: argparse.ArgumentParser) -> None:
                    help="controller rate in Hz (default 1000; the plant steps at 1 kHz)")
     p.add_argument("--attitude-model", choices=("paper", "rigid"), default="paper",
                    help="plant rotation: the paper's eq. (13) or the full rigid body (default: paper)")
+    p.add_argument("--actuators", choices=("ideal", "mixer"), default="ideal",
+                   help="ideal: the commanded thrust and torques act as in the paper (default); mixer: through "
+                        "the vehicle's X mixer with motor limits and lag, as the emulator's vehicle")
     p.add_argument("--no-figures", action="store_true", help="write metrics and time series only")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if needed)")
 
@@ -68,6 +71,7 @@ def run_cli(args: argparse.Namespace) -> dict[str, Any]:
         estimator=args.estimator,
         load_sensor=not args.no_load_sensor,
         seed=args.seed,
+        actuators=args.actuators,
     )
     params = smc.ControllerParams.for_vehicle(vehicle, switching=args.switching, epsilon=args.epsilon)
     progress = _progress_printer() if sys.stderr.isatty() else None

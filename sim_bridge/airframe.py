@@ -106,6 +106,12 @@ class Mixer:
         a = self.a
         return (f0 + f1 + f2 + f3, a * (f0 - f1 - f2 + f3), a * (-f0 - f1 + f2 + f3), self.c * (f0 - f1 + f2 - f3))
 
+    def wrench(self) -> tuple[float, float, float, float]:
+        """The actual motors' (thrust N, tau_x, tau_y, tau_z N m, FLU), without advancing the lag."""
+        f0, f1, f2, f3 = self.f
+        a = self.a
+        return (f0 + f1 + f2 + f3, a * (f0 - f1 - f2 + f3), a * (-f0 - f1 + f2 + f3), self.c * (f0 - f1 + f2 - f3))
+
 
 # ---------------------------------------------------------------------------------------------------------------
 # Quaternion helpers (w, x, y, z), plain floats.

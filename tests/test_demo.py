@@ -4,22 +4,17 @@ demo's defaults: px4-typical sensors in the emulator (noise, bias, latency of ``
 paper's disturbances with their clock started at the reference start, seed 0, the Kalman filter in the loop.
 
 Compared with ``slung sim --scenario paper --sensors px4-fast --estimator kf --control-rate 250
---attitude-model rigid --seed 0``: the same sensor models at the rates the loop requests (ATTITUDE and
-HIGHRES_IMU at 250 Hz, LOCAL_POSITION_NED at 100 Hz, LOADANG at 250 Hz = px4-fast's schedule), the same
-filter, controller, rate, plant model, disturbance signal and seed. Criterion per signal (e_Fx, e_Fy, e_z, alpha
-RMS): demo <= 1.3 x sim, no additive floor. Measured (seed 0; docs/usage-fly-demo.md): ratios 0.88-1.13.
+--attitude-model rigid --actuators mixer --seed 0``: the same sensor models at the rates the loop requests
+(ATTITUDE and HIGHRES_IMU at 250 Hz, LOCAL_POSITION_NED at 100 Hz, LOADANG at 250 Hz = px4-fast's schedule), the
+same filter, controller, rate, plant model, actuators (the emulator's X mixer with motor limits and lag),
+disturbance signal and seed. Criterion per signal (e_Fx, e_Fy, e_z, e_psi, alpha RMS): demo <= 1.3 x sim, no
+additive floor. Measured figures: docs/usage-fly-demo.md.
 
-e_psi is reported and compared but cannot meet the ratio, for a reason outside the loop: the emulator's X mixer
-gives roll and pitch priority and yaw what is left (as PX4's allocator without airmode does), and on the paper's
-vehicle the yaw torque of 0.11 N m needs the whole hover margin of every motor, while the sliding-mode roll /
-pitch torques switch by +-0.3-0.5 N m; during the 0 -> 0.5 rad heading manoeuvre (which asks up to 0.09 N m) the
-plant receives about half the commanded yaw torque (logged u[3] -0.04..-0.06 N m for -0.11 commanded), so
-the heading overshoots by 0.22-0.31 rad and the heading integral, wound up by the overshoot, leaves a -0.004 rad
-offset that unwinds over tens of seconds. ``slung sim`` applies the torques without a mixer. Evidence: with
-the emulator's mixer made unlimited (an experiment, not a test), the same demo gives e_psi 0.0009 rad RMS
-against sim's 0.0009 (ratio 1.04, max 0.003 rad). So e_psi is asserted against what the mixer allows: the
-excess is confined to the manoeuvre (RMS after 10 s within 8 x sim's whole-run RMS; 4.8-5.3 x measured, the
-integral's offset) and the peak stays below 0.4 rad (0.22-0.31 measured).
+Why the mixer: on the paper's vehicle the yaw torque of the 0 -> 0.5 rad heading manoeuvre needs the whole hover
+margin of every motor while the sliding-mode roll / pitch torques switch by +-0.3-0.5 N m, and a mixer that
+serves roll and pitch first (PX4's allocator without airmode, the emulator's) leaves yaw about half its command.
+With ``--actuators ideal`` (the paper's assumption) ``slung sim`` gives e_psi 0.0007 rad RMS, with the mixer
+0.05; the demo's 0.03-0.04 lies between. The other signals hardly change (docs/usage-fly-demo.md).
 """
 
 from __future__ import annotations
@@ -46,7 +41,7 @@ from offboard.scenarios import PAPER_DISTURBANCE_START_S, make_scenario
 
 DURATION = 50.0
 SEED = 0
-SIGNALS = ("e_Fx", "e_Fy", "e_z", "alpha")
+SIGNALS = ("e_Fx", "e_Fy", "e_z", "e_psi", "alpha")
 RATIO = 1.3
 
 
@@ -59,12 +54,12 @@ def demo_args(tmp_path, *extra: str) -> argparse.Namespace:
 @pytest.fixture(scope="module")
 def sim_run() -> tuple[dict, sim_mod.SimLog]:
     """slung sim with the demo's sensors (px4-fast = px4-typical at the loop's request rates), filter, rate,
-    plant model, disturbances and seed."""
+    plant model, actuators (the emulator's mixer), disturbances and seed."""
     v = Vehicle()
     sc = make_scenario("paper", duration=DURATION, seed=SEED)
     params = smc.ControllerParams.for_vehicle(v, switching="sign", epsilon=1.0)
     cfg = sim_mod.SimConfig(control_rate=250.0, attitude_model="rigid", sensors="px4-fast", estimator="kf",
-                            seed=SEED)
+                            seed=SEED, actuators="mixer")
     log = sim_mod.run(sc, v, params, cfg)
     return metrics_mod.compute(log), log
 
@@ -94,7 +89,7 @@ def test_demo_flies_the_paper_scenario_like_sim(tmp_path, sim_run, flavor: str, 
     assert m["flight"]["ended_by"] == "completed" and m["completed"] and m["all_finite"]
     assert m["flight"]["truth_source"] == "emulator truth"
     assert m["duration_s"] == pytest.approx(DURATION, abs=0.05)
-    ratios = {k: m["rms"][k] / sim_m["rms"][k] for k in (*SIGNALS, "e_psi")}
+    ratios = {k: m["rms"][k] / sim_m["rms"][k] for k in SIGNALS}
     for k in SIGNALS:
         assert m["rms"][k] <= RATIO * sim_m["rms"][k], (k, m["rms"][k], sim_m["rms"][k], ratios)
     # the emulator really was the paper scenario: noisy sensors, disturbance clock at the reference start
@@ -116,11 +111,7 @@ def test_demo_flies_the_paper_scenario_like_sim(tmp_path, sim_run, flavor: str, 
     np.testing.assert_allclose(ts["e_psi"], np.remainder(ts["psi"] - ts["psi_ref"] + np.pi, 2 * np.pi) - np.pi,
                                atol=1e-7)
     assert np.max(np.abs(ts["est_psi"])) < 0.05 and np.max(np.abs(ts["psi_rate"])) < 1.5
-    # e_psi: reported, compared, and held to what the emulator's mixer allows (module docstring)
-    after = t > 10.0
-    e_psi_after = float(np.sqrt(np.mean(ts["e_psi"][after] ** 2)))
-    assert e_psi_after <= 8.0 * sim_m["rms"]["e_psi"], (e_psi_after, sim_m["rms"]["e_psi"], ratios)
-    assert m["max"]["e_psi"] < 0.4, ratios
+    print(f"{flavor}/{output}: demo / sim RMS ratios", {k: round(v, 3) for k, v in ratios.items()})
     # the vehicle was left holding (PX4 AUTO.LOITER, ArduPilot LOITER), armed and airborne
     assert emu["mode"] == ("AUTO.LOITER" if flavor == "px4" else "LOITER") and emu["armed"]
     assert emu["counters"]["setpoints_rejected"] == 0
