@@ -100,6 +100,8 @@ def add_flight_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None
                    help="what Ctrl-C / SIGTERM does (default hold)")
     p.add_argument("--rt-priority", type=int, default=0, metavar="N",
                    help="run the loop with SCHED_FIFO real-time priority N (1..99; needs the right to; default off)")
+    p.add_argument("--force", action="store_true",
+                   help="fly a reference the pre-flight feasibility check finds beyond the vehicle's limits")
     p.add_argument("--no-figures", action="store_true", help="write metrics and time series only")
 
 
@@ -162,6 +164,7 @@ def fly(args: argparse.Namespace, *, lockstep: bool, takeoff: bool = True, truth
     cfg = build_loop_config(args, lockstep, takeoff, inject)
     params = smc.ControllerParams.for_vehicle(vehicle, switching=args.switching, epsilon=args.epsilon)
     mapper = CommandMapper(vehicle, MappingConfig(output=args.output, mask=args.mask), AutopilotModel())
+    feasibility = check_feasibility(scenario, duration, vehicle, params, mapper, cfg, args, quiet)
     tlog_path = out_dir / "flight.tlog"
     manager: Any = None
     if backend == "mavsdk":
@@ -201,7 +204,8 @@ def fly(args: argparse.Namespace, *, lockstep: bool, takeoff: bool = True, truth
     wall = time.perf_counter() - wall0
     m = write_flight_outputs(out_dir, result, scenario, vehicle, args, cfg, info.flavour, wall, link,
                              loop_t0=loop.events, figures=not args.no_figures,
-                             estimator_config={"load_sensor": load_sensor, "delay_s": ESTIMATOR_DELAY_S})
+                             estimator_config={"load_sensor": load_sensor, "delay_s": ESTIMATOR_DELAY_S},
+                             feasibility=feasibility)
     if not quiet:
         print(f"scenario {scenario.name}: ended by {result.ended_by}, vehicle {result.end_state}")
         if m.get("rms"):
@@ -214,6 +218,27 @@ def fly(args: argparse.Namespace, *, lockstep: bool, takeoff: bool = True, truth
             print(f"warning: {w}")
         print(f"report: {out_dir.resolve()}")
     return m, out_dir
+
+
+def check_feasibility(scenario: Scenario, duration: float, vehicle: Vehicle, params: smc.ControllerParams,
+                      mapper: CommandMapper, cfg: LoopConfig, args: argparse.Namespace,
+                      quiet: bool) -> dict[str, Any]:
+    """The nominal pre-flight check of the reference (``offboard.feasibility``), before anything connects: a
+    reference the vehicle cannot fly even in theory is a UserError unless ``--force``; warnings are printed.
+    Returns the summary recorded in ``metrics.json`` (``feasibility``)."""
+    from offboard.feasibility import FeasibilityLimits, check_reference
+
+    limits = FeasibilityLimits.from_config(params, mapper.config, cfg.swing_limit_rad)
+    res = check_reference(scenario.reference, duration, vehicle, limits)
+    force = bool(getattr(args, "force", False))
+    if not res.feasible and not force:
+        raise UserError(f"{scenario.name}: {res.messages[0]} (nominal pre-flight check, docs/references.md; "
+                        "--force flies it anyway)")
+    if not quiet:
+        for msg in res.messages:
+            print(f"pre-flight check: {msg}", file=sys.stderr)
+    return {"feasible": res.feasible, "forced": force and not res.feasible, "messages": list(res.messages),
+            "peaks": {d.name: d.peak for d in res.demands}}
 
 
 def to_sim_log(result: FlightResult, scenario: Scenario, vehicle: Vehicle, rate_hz: float, wall: float,
@@ -289,7 +314,8 @@ def to_sim_log(result: FlightResult, scenario: Scenario, vehicle: Vehicle, rate_
 def write_flight_outputs(out_dir: Path, result: FlightResult, scenario: Scenario, vehicle: Vehicle,
                          args: argparse.Namespace, cfg: LoopConfig, flavour: str, wall: float, link: dict[str, Any],
                          loop_t0: Any = None, figures: bool = True,
-                         estimator_config: dict[str, Any] | None = None) -> dict[str, Any]:
+                         estimator_config: dict[str, Any] | None = None,
+                         feasibility: dict[str, Any] | None = None) -> dict[str, Any]:
     """timeseries_live.csv, events.json, metrics.json, timeseries.csv and figures. ``estimator_config``: the
     ``load_sensor`` and ``delay_s`` the filter was built with (recorded in ``config`` for ``slung replay``)."""
     from offboard import report
@@ -333,6 +359,8 @@ def write_flight_outputs(out_dir: Path, result: FlightResult, scenario: Scenario
     m["loop"] = {**result.stats.summary(cfg.rate_hz), "reference_start_s": t_ref0,
                  "stale_limit_s": cfg.stale_s, "swing_limit_rad": cfg.swing_limit_rad}
     m["link"] = link
+    if feasibility is not None:
+        m["feasibility"] = feasibility
     m["flight"] = {"ended_by": result.ended_by, "end_state": result.end_state, "truth_source": source,
                    "setpoint_fallbacks": len(result.mapper_events), "warnings": list(result.warnings),
                    "telemetry": result.telemetry_counts}
