@@ -3,11 +3,23 @@
 from __future__ import annotations
 
 import ast
+import json
 import subprocess
 import sys
+from collections import deque
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("estimators", "offboard", "sim_bridge")
+
+#: The live flight path (``slung fly`` on a companion computer) and the log tools that run beside it: none of them
+#: may load the simulator / emulator (``sim_bridge``), directly, lazily inside a function, or through another module.
+FLY_PATH = (
+    "offboard.fly_cli", "offboard.loop", "offboard.command_mapping", "offboard.smc", "offboard.reference",
+    "offboard.scenarios", "offboard.runlog", "offboard.replay_cli", "offboard.replay", "offboard.replay_report",
+    "offboard.metrics", "offboard.report",
+    *sorted(f"offboard.link.{p.stem}" for p in (ROOT / "offboard" / "link").glob("*.py") if p.stem != "__init__"),
+)
 
 
 def _imports(package: str) -> set[tuple[str, str]]:
@@ -20,6 +32,142 @@ def _imports(package: str) -> set[tuple[str, str]]:
             elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
                 found.add((str(path.relative_to(ROOT)), node.module.split(".")[0]))
     return found
+
+
+def _module_path(name: str) -> Path | None:
+    """The source file of project module ``name`` (a package's ``__init__.py``), None outside the project."""
+    base = ROOT.joinpath(*name.split("."))
+    for path in (base.with_suffix(".py"), base / "__init__.py"):
+        if path.is_file():
+            return path
+    return None
+
+
+def _module_imports(name: str, path: Path) -> set[str]:
+    """Every module that the source of ``name`` may import, wherever the import statement is (top level, inside a
+    function or a branch): ``import a.b``, ``from a import b`` (``a`` and ``a.b``), relative imports, and
+    ``importlib.import_module`` / ``__import__`` of a literal name."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            found |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                parts = package.split(".")
+                base = ".".join(parts[: len(parts) - node.level + 1])
+                module = f"{base}.{node.module}" if node.module else base
+            else:
+                module = node.module or ""
+            found.add(module)
+            found |= {f"{module}.{a.name}" for a in node.names}
+        elif (isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant)
+              and isinstance(node.args[0].value, str)
+              and ((isinstance(node.func, ast.Attribute) and node.func.attr == "import_module")
+                   or (isinstance(node.func, ast.Name) and node.func.id in ("import_module", "__import__")))):
+            found.add(node.args[0].value)
+    return found
+
+
+def _import_closure(roots: tuple[str, ...]) -> dict[str, list[str]]:
+    """Every project module reachable from ``roots`` by imports (with their parent packages), each with a shortest
+    chain of modules that leads to it (breadth first, in sorted order: the same chain every time)."""
+    chains: dict[str, list[str]] = {}
+    todo = deque((r, [r]) for r in roots)
+    while todo:
+        name, chain = todo.popleft()
+        if name in chains or name.split(".")[0] not in PACKAGES:
+            continue
+        path = _module_path(name)
+        if path is None:
+            continue  # ``from package import function``: not a module
+        chains[name] = chain
+        parts = name.split(".")
+        todo += [(".".join(parts[:i]), chain) for i in range(1, len(parts))]
+        todo += [(m, [*chain, m]) for m in sorted(_module_imports(name, path))]
+    return chains
+
+
+def test_fly_path_imports_no_simulator_module_even_lazily() -> None:
+    """Static: no import anywhere in the live flight path's modules (functions included) reaches ``sim_bridge``,
+    directly or through another project module. The fly path must run on a companion computer without it."""
+    chains = _import_closure(FLY_PATH)
+    bad = {m: " -> ".join(c) for m, c in chains.items() if m.split(".")[0] == "sim_bridge"}
+    assert bad == {}
+    assert set(FLY_PATH) <= set(chains)  # every listed module was found and read
+
+
+def test_import_closure_sees_lazy_and_indirect_imports() -> None:
+    """The checker above can fail: the simulation harness reaches the plant through a top-level import and the
+    disturbances only through an import inside a function; ``offboard.sim_cli`` reaches those through
+    ``offboard.sim``."""
+    sim = _import_closure(("offboard.sim",))
+    assert {"sim_bridge.dynamics", "sim_bridge.sensors", "sim_bridge.disturbances"} <= set(sim)
+    assert sim["sim_bridge.disturbances"] == ["offboard.sim", "sim_bridge.disturbances"]
+    cli = _import_closure(("offboard.sim_cli",))
+    assert cli["sim_bridge.disturbances"] == ["offboard.sim_cli", "offboard.sim", "sim_bridge.disturbances"]
+
+
+def _sim_bridge_modules_after(code: str, timeout: float = 60.0) -> dict:
+    """Run ``code`` in a fresh interpreter; it leaves a dict in ``out``. Returns it with ``sim_bridge``: the
+    sim_bridge modules loaded by then."""
+    tail = ("\nout['sim_bridge'] = sorted(m for m in sys.modules if m == 'sim_bridge' or m.startswith('sim_bridge.'))"
+            "\nprint('RESULT ' + json.dumps(out))")
+    proc = subprocess.run([sys.executable, "-c", "import json, sys\nout = {}\n" + code + tail], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")][-1]
+    return json.loads(line.removeprefix("RESULT "))
+
+
+def test_fly_and_replay_load_no_simulator_module() -> None:
+    """Dynamic, in a fresh interpreter: importing ``slung fly`` and ``slung replay`` and building the paper
+    scenario's reference the way each of them does (plant-free ``offboard.scenarios``) loads no sim_bridge
+    module, while the simulation harness does (the check can fail)."""
+    out = _sim_bridge_modules_after(
+        "import argparse, offboard.fly_cli, offboard.replay_cli, offboard.replay, offboard.replay_report\n"
+        "sc, dur = offboard.fly_cli.make_reference(argparse.Namespace(scenario='paper', duration=None))\n"
+        "ref = offboard.replay.ReferenceSpec('paper').build()\n"
+        "out['fly'] = [sc.name, dur, sc.disturbance_start, list(sc.reference.sample(12.5).fx[:3])]\n"
+        "out['replay'] = list(ref.sample(12.5).fx[:3])\n"
+    )
+    assert out["sim_bridge"] == []
+    assert out["fly"][:3] == ["paper", 50.0, 25.0] and out["fly"][3] == out["replay"]
+    assert abs(out["replay"][1]) > 0.0  # the figure-eight is moving at 12.5 s
+    harness = _sim_bridge_modules_after("import offboard.sim\n")
+    assert "sim_bridge.dynamics" in harness["sim_bridge"]
+
+
+def test_flying_and_replaying_load_no_simulator_module(tmp_path: Path) -> None:
+    """Dynamic, end to end: a fresh interpreter flies the paper scenario for 2 s with ``slung fly``'s own code
+    (over real UDP on 127.0.0.1, against the bundled emulator running in THIS process), writes its report, replays
+    its tlog with ``slung replay``'s code, and by then has loaded no sim_bridge module."""
+    from offboard.demo_cli import EmulatorThread, free_udp_port
+
+    port = free_udp_port()
+    emu = EmulatorThread("px4", port, lockstep=True, period=0.004, vehicle=None, attitude_model="rigid",
+                         noise=0.0, loss=0.0, tlog=None).start()
+    fly_argv = ["--connect", f"udpin:127.0.0.1:{port}", "--scenario", "paper", "--duration", "2", "--lockstep",
+                "--no-figures", "--out", str(tmp_path / "fly")]
+    replay_argv = [str(tmp_path / "fly" / "flight.tlog"), "--no-figures", "--out", str(tmp_path / "replay")]
+    try:
+        out = _sim_bridge_modules_after(
+            "import argparse, contextlib, io\n"
+            "from offboard import fly_cli, replay_cli\n"
+            "def parse(mod, argv):\n"
+            "    p = argparse.ArgumentParser()\n"
+            "    mod.configure(p)\n"
+            "    return p.parse_args(argv)\n"
+            "with contextlib.redirect_stdout(io.StringIO()):\n"
+            f"    out['fly'] = fly_cli.run(parse(fly_cli, {fly_argv!r}))\n"
+            f"    out['replay'], m, _ = replay_cli.run_replay(parse(replay_cli, {replay_argv!r}))\n"
+            "out['replayed'] = m['replayed']\n", timeout=120.0)
+    finally:
+        emu.stop()
+    assert out["fly"] == 0 and out["replay"] == 0 and out["replayed"] is True
+    m = json.loads((tmp_path / "fly" / "metrics.json").read_text(encoding="utf-8"))
+    assert m["scenario"] == "paper" and m["flight"]["ended_by"] == "completed"
+    assert out["sim_bridge"] == []
 
 
 def test_layering_estimators_import_neither_offboard_nor_sim_bridge() -> None:
