@@ -13,7 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from offboard.outputs import write_atomic, write_json_atomic, write_text_atomic
+from offboard.figures import pyplot, save_png
+from offboard.outputs import write_json_atomic, write_text_atomic
 from offboard.replay import SP_ACT, SP_ATT, ReplayResult
 
 
@@ -37,21 +38,13 @@ def draw_figures(result: ReplayResult, out_dir: Path) -> list[Path]:
     """swing.png (estimated swing vs the cable-angle sensor), flat_outputs.png (estimated F_x, F_y, z, psi and
     their references), setpoints.png (logged vs recomputed setpoints and their difference, when the log has
     them)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     col = result.column
     t = col("t")
     paths: list[Path] = []
 
     def save(fig: Any, name: str) -> None:
-        fig.tight_layout()
-        path = out_dir / name
-        write_atomic(path, lambda p: fig.savefig(p, dpi=110, format="png"))
-        plt.close(fig)
-        paths.append(path)
+        paths.append(save_png(fig, out_dir / name))
 
     fig, axes = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
     for ax, name in zip(axes, ("alpha_x", "alpha_y")):

@@ -11,7 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from offboard.outputs import write_atomic, write_json_atomic, write_text_atomic
+from offboard.figures import pyplot, save_png
+from offboard.outputs import write_json_atomic, write_text_atomic
 from offboard.runlog import COL, LOG_COLUMNS, SimLog
 
 #: Columns written to timeseries.csv (all of them) and the decimation to about this rate.
@@ -39,11 +40,7 @@ def write_report(log: SimLog, metrics: dict[str, Any], out_dir: Path, figures: b
 
 def draw_figures(log: SimLog, metrics: dict[str, Any], out_dir: Path) -> list[Path]:
     """Draw the paper-style figures; returns the PNG paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     d = log.data
     t = d[:, COL["t"]]
     c = lambda name: d[:, COL[name]]  # noqa: E731 - a short column accessor keeps the plots readable
@@ -51,11 +48,7 @@ def draw_figures(log: SimLog, metrics: dict[str, Any], out_dir: Path) -> list[Pa
     paths: list[Path] = []
 
     def save(fig: Any, name: str) -> None:
-        fig.tight_layout()
-        path = out_dir / name
-        write_atomic(path, lambda p: fig.savefig(p, dpi=110, format="png"))
-        plt.close(fig)
-        paths.append(path)
+        paths.append(save_png(fig, out_dir / name))
 
     def panels(title: str, rows: list[tuple[str, list[tuple[np.ndarray, str, str]]]], name: str,
                mask: np.ndarray | None = None) -> None:
