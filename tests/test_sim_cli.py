@@ -171,3 +171,32 @@ def test_slack_cable_is_detected_and_reported(caplog: pytest.LogCaptureFixture) 
     assert m["cable"]["slack_steps"] > 0 and m["cable"]["min_tension_n"] <= 0.0
     assert any("slack" in r.message for r in caplog.records)
     assert "slack" in metrics_mod.format_table(m)
+
+
+def test_named_scenarios_are_plant_free_and_the_harness_builds_their_plant_side() -> None:
+    """offboard.scenarios gives the reference part and plain numbers only; offboard.sim.plant_scenario builds the
+    plant state and the paper disturbances from them (seeded, onset at the scenario's disturbance start), and a
+    scenario with neither a state nor a setup is refused."""
+    from estimators.cable import cable_from_spherical
+    from offboard import reference, sim
+    from offboard.scenarios import PAPER_DISTURBANCE_START_S, SCENARIOS, make_scenario
+    from sim_bridge import dynamics
+    from sim_bridge.disturbances import DisturbanceSpec, RandomDisturbance
+
+    for name in SCENARIOS:
+        sc = make_scenario(name, seed=4)
+        assert sc.initial_state is None and sc.disturbance is None and sc.setup is not None and sc.setup.seed == 4
+    paper = sim.plant_scenario(make_scenario("paper", seed=4))
+    assert paper.initial_state == dynamics.make_state(position=(0.0, 0.0, 1.0))
+    expected = RandomDisturbance(DisturbanceSpec(start=PAPER_DISTURBANCE_START_S), 4)
+    assert paper.disturbance is not None and paper.disturbance_start == PAPER_DISTURBANCE_START_S
+    assert all(paper.disturbance(t) == expected(t) for t in (0.0, 25.4, 31.7))
+    assert max(abs(v) for v in paper.disturbance(31.7)) > 0.0
+    hover = sim.plant_scenario(make_scenario("hover"))
+    r, rd = cable_from_spherical(0.2, 0.5, 0.0, 0.3)
+    assert hover.disturbance is None
+    assert hover.initial_state == dynamics.make_state(position=(0.0, 0.0, 1.0), cable=r, cable_rate=rd)
+    given = sim.Scenario("given", "", 1.0, reference.hover(0.0, 0.0, 1.0), [0.0] * 14 + [-1.0, 0.0, 0.0, 0.0])
+    assert sim.plant_scenario(given) is given  # an explicit plant state is used as it is
+    with pytest.raises(ValueError, match="no initial plant state"):
+        sim.plant_scenario(sim.Scenario("bare", "", 1.0, reference.hover(0.0, 0.0, 1.0)))
