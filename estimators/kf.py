@@ -65,7 +65,6 @@ _N_INPUTS = 6  # x axis: n'' and the nonlinear remainder of a''; the same for y;
 
 #: the in-place updates of :meth:`KalmanEstimator._update` by kind: adjacent pair, row, one state
 _FAST_UPDATES = (update_pair, update_row, update_one)
-dot = np.dot
 
 STATE_NAMES: tuple[str, ...] = (
     "p_x", "v_x", "alpha_y", "alpha_y_rate", "n_x", "n_x_rate", "d_x", "b_x",
@@ -427,18 +426,18 @@ class KalmanEstimator:
         cmds = self._cmds
         ncmd = len(cmds)
         p, x = core[2], core[1]
-        b = dot(self._aug, d.phi_t)  # [P Phi^T; x Phi^T]
-        dot(d.phi, b[:8], out=p)
+        b = self._aug.dot(d.phi_t)  # [P Phi^T; x Phi^T]
+        d.phi.dot(b[:8], out=p)
         p += d.q
         if j + 1 >= ncmd or cmds[j + 1][0] >= t:  # one command in force over the whole step
-            np.add(b[8:], dot(cmds[j][1][1], d.gamma_t), out=x)
+            np.add(b[8:], cmds[j][1][1].dot(d.gamma_t), out=x)
         else:  # the mean piecewise, one segment per command
             tc = t0
             while True:
                 end = cmds[j + 1][0] if j + 1 < ncmd and cmds[j + 1][0] < t else t
                 if end > tc:
                     d = blk.discrete(end - tc)
-                    np.add(dot(x, d.phi_t), dot(cmds[j][1][1], d.gamma_t), out=x)
+                    np.add(x.dot(d.phi_t), cmds[j][1][1].dot(d.gamma_t), out=x)
                     tc = end
                 if end >= t:
                     break
@@ -652,7 +651,7 @@ class KalmanEstimator:
             end = cmds[j + 1][0] if j + 1 < len(cmds) and cmds[j + 1][0] < t else t
             if end > tc:
                 outw[22:] = cmds[j][1][0]
-                out[:] = dot(outw, self._output_model(end - tc))
+                out[:] = outw.dot(self._output_model(end - tc))
                 tc = end
             if end >= t:
                 break
@@ -685,7 +684,7 @@ class KalmanEstimator:
         """Carry a correction ``-ndx`` ((2, 8), given negated) of the delayed horizontal state to the output."""
         h = self._t_out - self._core[0][0]
         if h > 0.0:
-            self._out_view_h -= dot(ndx, self._hb.discrete(h).phi_t)
+            self._out_view_h -= ndx.dot(self._hb.discrete(h).phi_t)
         else:
             self._out_view_h -= ndx
 
@@ -699,7 +698,7 @@ class KalmanEstimator:
         if h > 0.0:
             blk = self._hb
             d = blk.discrete(h)
-            hp = dot(dot(d.phi, hp), d.phi_t)
+            hp = d.phi.dot(hp).dot(d.phi_t)
             hp += d.q
             blk._n_predict += 1
             if blk._n_predict % 16 == 0:
