@@ -263,25 +263,30 @@ def step(
 
     # ---- horizontal: commanded F^(6) per world axis ----------------------------------------------------
     K0, K1, K2, K3, K4, K5 = G.K
-    fx, fy = est.fx, est.fy
-    ex = [fx[i] - ref_fx[i] for i in range(6)]
-    ey = [fy[i] - ref_fy[i] for i in range(6)]
-    int_fx = memory.int_fx + ex[0] * dt
-    int_fy = memory.int_fy + ey[0] * dt
-    sigma_x = ex[5] + K5 * ex[4] + K4 * ex[3] + K3 * ex[2] + K2 * ex[1] + K1 * ex[0] + K0 * int_fx
-    sigma_y = ey[5] + K5 * ey[4] + K4 * ey[3] + K3 * ey[2] + K2 * ey[1] + K1 * ey[0] + K0 * int_fy
+    # the errors e^(i) = F^(i) - F*^(i), i = 0..5, unrolled (this runs every tick, in the live loop and in replay)
+    fx0, fx1, fx2, fx3, fx4, fx5 = est.fx
+    fy0, fy1, fy2, fy3, fy4, fy5 = est.fy
+    ex0, ex1, ex2, ex3, ex4, ex5 = (fx0 - ref_fx[0], fx1 - ref_fx[1], fx2 - ref_fx[2], fx3 - ref_fx[3],
+                                    fx4 - ref_fx[4], fx5 - ref_fx[5])
+    ey0, ey1, ey2, ey3, ey4, ey5 = (fy0 - ref_fy[0], fy1 - ref_fy[1], fy2 - ref_fy[2], fy3 - ref_fy[3],
+                                    fy4 - ref_fy[4], fy5 - ref_fy[5])
+    int_fx = memory.int_fx + ex0 * dt
+    int_fy = memory.int_fy + ey0 * dt
+    sigma_x = ex5 + K5 * ex4 + K4 * ex3 + K3 * ex2 + K2 * ex1 + K1 * ex0 + K0 * int_fx
+    sigma_y = ey5 + K5 * ey4 + K4 * ey3 + K3 * ey2 + K2 * ey1 + K1 * ey0 + K0 * int_fy
     if smooth:
         sw_x = sigma_x / (abs(sigma_x) + eps)
         sw_y = sigma_y / (abs(sigma_y) + eps)
     else:
         sw_x = math.copysign(1.0, sigma_x) if sigma_x != 0.0 else 0.0
         sw_y = math.copysign(1.0, sigma_y) if sigma_y != 0.0 else 0.0
-    vx = ref_fx[6] - K5 * ex[5] - K4 * ex[4] - K3 * ex[3] - K2 * ex[2] - K1 * ex[1] - K0 * ex[0] - G.rho_F * sw_x
-    vy = ref_fy[6] - K5 * ey[5] - K4 * ey[4] - K3 * ey[3] - K2 * ey[2] - K1 * ey[1] - K0 * ey[0] - G.rho_F * sw_y
+    rho_F = G.rho_F
+    vx = ref_fx[6] - K5 * ex5 - K4 * ex4 - K3 * ex3 - K2 * ex2 - K1 * ex1 - K0 * ex0 - rho_F * sw_x
+    vy = ref_fy[6] - K5 * ey5 - K4 * ey4 - K3 * ey3 - K2 * ey2 - K1 * ey1 - K0 * ey0 - rho_F * sw_y
 
     # world tilt acceleration, then the heading-aligned frame (t = [theta, -phi], n = Rz(psi) t)
-    nddx = (vx + k.omega2 * fx[4]) / k.c
-    nddy = (vy + k.omega2 * fy[4]) / k.c
+    nddx = (vx + k.omega2 * fx4) / k.c
+    nddy = (vy + k.omega2 * fy4) / k.c
     t1, t2 = theta, -phi
     t1d, t2d = est.theta_rate, -est.phi_rate
     w = est.psi_rate
@@ -292,11 +297,26 @@ def step(
     tau_theta = d.I_theta * t1dd
     tau_phi = -d.I_phi * t2dd
 
-    thrust, s1 = _clip(thrust, params.thrust_min, params.thrust_max)
+    # saturation, _clip inlined (a NaN passes unclipped, as through _clip, and is caught below)
+    lo, hi = params.thrust_min, params.thrust_max
+    s1 = s2 = s3 = s4 = False
+    if thrust < lo:
+        thrust, s1 = lo, True
+    elif thrust > hi:
+        thrust, s1 = hi, True
     tp_max, tt_max, ts_max = params.torque_max
-    tau_phi, s2 = _clip(tau_phi, -tp_max, tp_max)
-    tau_theta, s3 = _clip(tau_theta, -tt_max, tt_max)
-    tau_psi, s4 = _clip(tau_psi, -ts_max, ts_max)
+    if tau_phi < -tp_max:
+        tau_phi, s2 = -tp_max, True
+    elif tau_phi > tp_max:
+        tau_phi, s2 = tp_max, True
+    if tau_theta < -tt_max:
+        tau_theta, s3 = -tt_max, True
+    elif tau_theta > tt_max:
+        tau_theta, s3 = tt_max, True
+    if tau_psi < -ts_max:
+        tau_psi, s4 = -ts_max, True
+    elif tau_psi > ts_max:
+        tau_psi, s4 = ts_max, True
 
     cmd = Command(thrust, tau_phi, tau_theta, tau_psi, s_z, s_psi, sigma_x, sigma_y, s1 or s2 or s3 or s4, True)
     if not math.isfinite(thrust + tau_phi + tau_theta + tau_psi + int_z + int_psi + int_fx + int_fy):
