@@ -137,6 +137,16 @@ def _finite(*vals: float) -> bool:
     return all(isf(v) for v in vals)
 
 
+def _finite4(a: float, b: float, c: float, d: float) -> bool:
+    """:func:`_finite` of four values: one sum is finite only when all four are (else look: the sum may overflow)."""
+    isf = math.isfinite
+    return isf(a + b + c + d) or (isf(a) and isf(b) and isf(c) and isf(d))
+
+
+_MASK_ATTITUDE = MASKS["attitude"]
+_MASK_ATTITUDE_RATES = MASKS["attitude+rates"]
+
+
 def _clip(v: float, lo: float, hi: float) -> float:
     return lo if v < lo else hi if v > hi else v
 
@@ -200,12 +210,19 @@ class CommandMapper:
     def map(self, t: float, cmd: Command, est: ControlState) -> Setpoint:
         """The setpoint for this tick (finite and in range, whatever the inputs). ``t``: controller time, s."""
         dt = 0.0 if self._last_t is None or not math.isfinite(t) else max(0.0, t - self._last_t)
-        ok_in = cmd.valid and _finite(cmd.thrust, cmd.tau_phi, cmd.tau_theta, cmd.tau_psi) and est.is_finite()
+        ok_in = cmd.valid and _finite4(cmd.thrust, cmd.tau_phi, cmd.tau_theta, cmd.tau_psi) and est.is_finite()
         sp: Setpoint | None = None
         if ok_in:
-            sp = self._actuator(cmd, dt) if self.config.output == "actuator" else self._attitude(cmd, est, dt)
-            if sp is not None and not _finite(*_flat(sp)):
-                sp = None
+            if self.config.output == "actuator":
+                sp = self._actuator(cmd, dt)
+                if not _finite4(*sp):
+                    sp = None
+            else:
+                sp = self._attitude(cmd, est, dt)
+                q = sp.q
+                if not (_finite4(q[0], q[1], q[2], q[3]) and _finite4(sp.roll_rate, sp.pitch_rate, sp.yaw_rate,
+                                                                       sp.thrust)):
+                    sp = None
         if sp is None:
             return self._fallback(t, est, "non-finite or invalid controller command" if not ok_in
                                   else "non-finite setpoint after mapping")
@@ -249,38 +266,42 @@ class CommandMapper:
         return ActuatorTarget(n[0], n[1], n[2], self._slew_thrust(cmd.thrust / self._T_max, dt))
 
     def _attitude(self, cmd: Command, est: ControlState, dt: float) -> AttitudeTarget:
+        # per axis (roll, pitch, yaw) unrolled; the arithmetic is the per-axis formula of the module docstring
         ap = self.autopilot
         c = self.config
         I1, I2, I3 = self._inertia
-        kp, bw = ap.attitude_p, ap.rate_bandwidth
+        kp0, kp1, kp2 = ap.attitude_p
+        bw0, bw1, bw2 = ap.rate_bandwidth
         ig = self._integ
-        tp = (cmd.tau_phi - ig[0], cmd.tau_theta - ig[1], cmd.tau_psi - ig[2])  # torque asked of the P path, N m
-        a = (tp[0] / I1 / bw[0], tp[1] / I2 / bw[1], tp[2] / I3 / bw[2])  # rate step, rad/s
+        # torque asked of the P path, N m, and the rate step, rad/s
+        tp0, tp1, tp2 = cmd.tau_phi - ig[0], cmd.tau_theta - ig[1], cmd.tau_psi - ig[2]
+        a0, a1, a2 = tp0 / I1 / bw0, tp1 / I2 / bw1, tp2 / I3 / bw2
         if dt > 0.0:
             ki, lim, tm = ap.rate_integral, ap.integral_limit, self._tau_max
-            for i in range(3):
-                ig[i] = _clip(ig[i] + ki[i] * tp[i] * dt, -lim * tm[i], lim * tm[i])
-        w = euler_rates_to_body(est.phi, est.theta, est.phi_rate, est.theta_rate, est.psi_rate)
+            ig[0] = _clip(ig[0] + ki[0] * tp0 * dt, -lim * tm[0], lim * tm[0])
+            ig[1] = _clip(ig[1] + ki[1] * tp1 * dt, -lim * tm[1], lim * tm[1])
+            ig[2] = _clip(ig[2] + ki[2] * tp2 * dt, -lim * tm[2], lim * tm[2])
+        w0, w1, w2 = euler_rates_to_body(est.phi, est.theta, est.phi_rate, est.theta_rate, est.psi_rate)
         mask = self._mask
-        if mask == MASKS["attitude"]:
-            e = ((w[0] + a[0]) / kp[0], (w[1] + a[1]) / kp[1], (w[2] + a[2]) / kp[2])
-            rates = (w[0] + a[0], w[1] + a[1], w[2] + a[2])
-        elif mask == MASKS["attitude+rates"]:
-            e = (a[0] / kp[0], a[1] / kp[1], a[2] / kp[2])
-            rates = w
+        if mask == _MASK_ATTITUDE:
+            r0, r1, r2 = w0 + a0, w1 + a1, w2 + a2
+            e = (r0 / kp0, r1 / kp1, r2 / kp2)
+        elif mask == _MASK_ATTITUDE_RATES:
+            e = (a0 / kp0, a1 / kp1, a2 / kp2)
+            r0, r1, r2 = w0, w1, w2
         else:  # rates only
             e = (0.0, 0.0, 0.0)
-            rates = (w[0] + a[0], w[1] + a[1], w[2] + a[2])
-        q = euler_to_quaternion(est.phi, est.theta, est.psi)
-        qd = _rotate_by_body_error(q, e)
+            r0, r1, r2 = w0 + a0, w1 + a1, w2 + a2
+        qd = _rotate_by_body_error(euler_to_quaternion(est.phi, est.theta, est.psi), e)
         phi_sp, theta_sp, psi_sp = quaternion_to_euler(*qd)
-        if abs(phi_sp) > c.max_tilt or abs(theta_sp) > c.max_tilt:
-            phi_sp = _clip(phi_sp, -c.max_tilt, c.max_tilt)
-            theta_sp = _clip(theta_sp, -c.max_tilt, c.max_tilt)
+        mt = c.max_tilt
+        if abs(phi_sp) > mt or abs(theta_sp) > mt:
+            phi_sp = _clip(phi_sp, -mt, mt)
+            theta_sp = _clip(theta_sp, -mt, mt)
             qd = euler_to_quaternion(phi_sp, theta_sp, psi_sp)
         q_ned = model_quaternion_to_ned(*qd)
         rr = c.max_rate
-        rf = model_body_to_frd(_clip(rates[0], -rr, rr), _clip(rates[1], -rr, rr), _clip(rates[2], -rr, rr))
+        rf = model_body_to_frd(_clip(r0, -rr, rr), _clip(r1, -rr, rr), _clip(r2, -rr, rr))
         u = self.thrust_norm(cmd.thrust)
         if ap.flavour == "ardupilot" and ap.angle_boost:
             # AC_AttitudeControl_Multi::get_throttle_boosted divides by the CURRENT tilt (AHRS cos roll x cos pitch)
@@ -306,12 +327,6 @@ def _rotate_by_body_error(q: tuple[float, float, float, float], e: tuple[float, 
         qw * ey - qx * ez + qy * ew + qz * ex,
         qw * ez + qx * ey - qy * ex + qz * ew,
     )
-
-
-def _flat(sp: Setpoint) -> tuple[float, ...]:
-    if isinstance(sp, AttitudeTarget):
-        return (*sp.q, sp.roll_rate, sp.pitch_rate, sp.yaw_rate, sp.thrust)
-    return tuple(sp)
 
 
 def _yaw_of_ned_quaternion(q: tuple[float, float, float, float]) -> float:
