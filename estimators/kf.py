@@ -55,7 +55,7 @@ from estimators.cable import cable_from_planar
 from estimators.control_state import ControlState
 from estimators.flatness import flat_chain, flat_constants, planar_state, world_tilt
 from estimators.frames import wrap_angle
-from estimators.linear_block import LinearBlock, update_one, update_pair, update_row
+from estimators.linear_block import AugWorkspace, LinearBlock, update_one, update_pair, update_row
 from estimators.measurements import Attitude, Imu, LoadAngle, Measurement, PositionVelocity
 from estimators.vehicle import Vehicle
 
@@ -201,7 +201,6 @@ class KalmanEstimator:
         self._ycache: dict[int, tuple[float, ...]] = {}
         self._zcache: dict[int, tuple[float, ...]] = {}
         self._gate_reopen = tn.gate_reopen
-        self._buf = np.empty(8)  # scratch of update_pair
         self._initialized = False
 
     # --------------------------------------------------------------------------------------------------------
@@ -225,6 +224,7 @@ class KalmanEstimator:
         # _advance_horizontal); heading: plain floats, mean [psi, psi'] and P row-major (4); height: plain
         # floats, mean (4) and the upper triangle of P (10)
         self._aug = aug = np.concatenate((hp, hx))
+        self._ws = AugWorkspace(aug)
         self._core = [[float(t), aug[8:], aug[:8]], [float(t), yx, yp], [float(t), zx, zp]]
         # output: the 22 means in STATE_NAMES order, followed by the 6 command inputs in force (see _advance_output)
         self._outw = np.concatenate((hx.ravel(), yx, zx, np.zeros(_N_INPUTS)))
@@ -426,11 +426,12 @@ class KalmanEstimator:
         cmds = self._cmds
         ncmd = len(cmds)
         p, x = core[2], core[1]
-        b = self._aug.dot(d.phi_t)  # [P Phi^T; x Phi^T]
-        d.phi.dot(b[:8], out=p)
+        ws = self._ws
+        self._aug.dot(d.phi_t, out=ws.pred)  # [P Phi^T; x Phi^T]
+        d.phi.dot(ws.pred_p, out=p)
         p += d.q
         if j + 1 >= ncmd or cmds[j + 1][0] >= t:  # one command in force over the whole step
-            np.add(b[8:], cmds[j][1][1].dot(d.gamma_t), out=x)
+            np.add(ws.pred_x, cmds[j][1][1].dot(d.gamma_t), out=x)
         else:  # the mean piecewise, one segment per command
             tc = t0
             while True:
@@ -680,14 +681,6 @@ class KalmanEstimator:
             self._out_cache[key] = mdl
         return mdl
 
-    def _correct_output(self, ndx: np.ndarray) -> None:
-        """Carry a correction ``-ndx`` ((2, 8), given negated) of the delayed horizontal state to the output."""
-        h = self._t_out - self._core[0][0]
-        if h > 0.0:
-            self._out_view_h -= ndx.dot(self._hb.discrete(h).phi_t)
-        else:
-            self._out_view_h -= ndx
-
     def _output_covariances_raw(self) -> tuple[np.ndarray, list[float], list[float]]:
         """The blocks' covariances predicted to the output time, in their storage forms: horizontal (8, 8),
         heading row-major floats (4), height upper-triangle floats (10)."""
@@ -730,16 +723,21 @@ class KalmanEstimator:
         """One gated update of the horizontal block (``kind``: 0 = two adjacent states (arg = first index),
         1 = a measurement row (arg = the row), 2 = one state (arg = its index)); returns False when gated."""
         fn = _FAST_UPDATES[kind]
-        aug = self._aug
-        ndx = fn(aug, arg, z, r, self._gate[dof], self._buf)
+        ws = self._ws
+        ndx = fn(ws, arg, z, r, self._gate[dof])
         if ndx is None:
             if not self._gated(name):
                 return False
-            ndx = fn(aug, arg, z, r, math.inf, self._buf)
+            ndx = fn(ws, arg, z, r, math.inf)
             if ndx is None:
                 return False
         self._gated_run[name] = 0
-        self._correct_output(ndx)
+        # carry the correction to the output (_correct_output, inlined)
+        h = self._t_out - self._core[0][0]
+        if h > 0.0:
+            self._out_view_h -= ndx.dot(self._hb.discrete(h).phi_t)
+        else:
+            self._out_view_h -= ndx
         return True
 
     def _update_heading(self, z0: float, z1: float) -> bool:

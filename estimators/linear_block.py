@@ -183,22 +183,53 @@ class LinearBlock:
 # Same arithmetic (to rounding) as the methods of LinearBlock, on one array ``aug = [P; x]`` (n + batch, n)
 # holding the covariance and the channels' means, so that one product serves both; the 2 x 2 algebra is done in
 # plain floats and ndarray.dot (several times cheaper than ``@`` on tiny arrays, and a little cheaper than the function
-# np.dot, which dispatches first) does the rest. Each returns the
-# NEGATED state correction (batch, n) (one negation fewer), or None when gated (then nothing changes).
-_outer = np.multiply.outer
+# np.dot, which dispatches first) does the rest, into the preallocated buffers and through the prepared views of an
+# :class:`AugWorkspace` (numpy's cost here is per call, a slice or an allocation costing as much as an 8 x 8 product).
+# Each returns the NEGATED state correction (batch, n) (one negation fewer; a view of a workspace buffer, valid until
+# the next update), or None when gated (then nothing changes).
+
+
+class AugWorkspace:
+    """Views of one ``aug = [P; x]`` array (n + batch, n) and the scratch buffers of the updates below and of a
+    prediction (``pred``: ``aug Phi^T``, with its views ``pred_p`` and ``pred_x``)."""
+
+    def __init__(self, aug: np.ndarray) -> None:
+        rows, n = aug.shape
+        batch = rows - n
+        self.aug, self.n = aug, n
+        self.p, self.x = aug[:n], aug[n:]
+        self.pred = np.empty((rows, n))
+        self.pred_p, self.pred_x = self.pred[:n], self.pred[n:]
+        self.buf = np.empty(2 * (2 + batch))  # [S^-1; -y S^-1] of a pair update, flat
+        self.buf2 = self.buf.reshape(2 + batch, 2)
+        self.kd = np.empty((2 + batch, n))  # [S^-1; -y S^-1] P[i:i+2]
+        self.kd_gain, self.kd_dx = self.kd[:2], self.kd[2:]
+        self.pp = np.empty((n, n))  # P[:, i:i+2] S^-1 P[i:i+2]
+        self.v = np.empty(rows)  # aug h, or column i of aug
+        self.outer = np.empty((rows, n))  # rank-1 update
+        self.outer_dx = self.outer[n:]
+        self._pair: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def pair(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(aug[:, i:i+2], P[i:i+2], P[i:i+2].T): views for a pair update of states i, i + 1."""
+        v = self._pair.get(i)
+        if v is None:
+            pr = self.aug[i:i + 2]
+            v = self._pair[i] = (self.aug[:, i:i + 2], pr, pr.T)
+        return v
 
 
 def update_pair(
-    aug: np.ndarray, i: int, z: tuple[float, ...], r: tuple[float, float], gate: float, buf: np.ndarray
+    ws: AugWorkspace, i: int, z: tuple[float, ...], r: tuple[float, float], gate: float
 ) -> np.ndarray | None:
     """:meth:`LinearBlock.update_states` for the adjacent pair of states ``(i, i + 1)``.
 
     Uses rows ``i, i + 1`` of P where the original uses its columns (P is symmetric): the gain and the state
-    corrections come from one product ``[S^-1; y S^-1] P[i:i+2]``. buf: scratch array of ``2 (2 + batch)``
-    floats.
+    corrections come from one product ``[S^-1; y S^-1] P[i:i+2]``.
     """
-    n = aug.shape[1]
-    cols = aug[:, i:i + 2].tolist()  # columns i, i + 1: rows i, i + 1 hold S - R, the tail the channels' means
+    n = ws.n
+    cols_v, pr, pr_t = ws.pair(i)
+    cols = cols_v.tolist()  # columns i, i + 1: rows i, i + 1 hold S - R, the tail the channels' means
     s11, s12 = cols[i]
     s22 = cols[i + 1][1] + r[1]
     s11 += r[0]
@@ -218,33 +249,37 @@ def update_pair(
         k += 2
     if not nis <= gate:
         return None
-    buf[:] = rows
-    pr = aug[i:i + 2]  # a view: the products are formed before aug is written
-    kd = buf.reshape(-1, 2).dot(pr)  # rows 0-1: S^-1 P[i:i+2] (the gain, transposed); then -corrections
-    ndx = kd[2:]
-    aug[:n] -= pr.T.dot(kd[:2])
-    aug[n:] -= ndx
+    ws.buf[:] = rows
+    kd = ws.kd
+    ws.buf2.dot(pr, out=kd)  # rows 0-1: S^-1 P[i:i+2] (the gain, transposed); then -corrections
+    pp = ws.pp
+    pr_t.dot(ws.kd_gain, out=pp)
+    ws.p -= pp
+    ndx = ws.kd_dx
+    ws.x -= ndx
     return ndx
 
 
-def _rank1(aug: np.ndarray, v: np.ndarray, y: list[float], s: float) -> np.ndarray:
-    """``P -= (P h)(P h)^T / s`` and ``x_c += y_c (P h) / s``, from ``v = aug h`` whose tail (the channels'
-    ``h . x``) is overwritten with ``-y``; returns the negated corrections."""
-    n = aug.shape[1]
+def _rank1(ws: AugWorkspace, v: np.ndarray, y: list[float], s: float) -> np.ndarray:
+    """``P -= (P h)(P h)^T / s`` and ``x_c += y_c (P h) / s``, from ``v = aug h`` (a workspace buffer) whose tail
+    (the channels' ``h . x``) is overwritten with ``-y``; returns the negated corrections."""
+    n = ws.n
     for c, yc in enumerate(y):
         v[n + c] = -yc
-    kd = _outer(v, v[:n])
+    kd = ws.outer
+    np.multiply.outer(v, v[:n], out=kd)
     kd *= 1.0 / s
-    aug -= kd
-    return kd[n:]
+    ws.aug -= kd
+    return ws.outer_dx
 
 
 def update_row(
-    aug: np.ndarray, h: np.ndarray, z: tuple[float, ...], r: float, gate: float, buf: np.ndarray
+    ws: AugWorkspace, h: np.ndarray, z: tuple[float, ...], r: float, gate: float
 ) -> np.ndarray | None:
-    """:meth:`LinearBlock.update_row` (buf: unused, for a common signature)."""
-    n = aug.shape[1]
-    v = aug.dot(h)  # P h, then the channels' h . x
+    """:meth:`LinearBlock.update_row`."""
+    n = ws.n
+    v = ws.v
+    ws.aug.dot(h, out=v)  # P h, then the channels' h . x
     vl = v.tolist()
     s = r
     for a, b in zip(vl, h.tolist()):
@@ -255,15 +290,16 @@ def update_row(
         yy += e * e
     if not yy <= gate * s:
         return None
-    return _rank1(aug, v, y, s)
+    return _rank1(ws, v, y, s)
 
 
 def update_one(
-    aug: np.ndarray, i: int, z: tuple[float, ...], r: float, gate: float, buf: np.ndarray
+    ws: AugWorkspace, i: int, z: tuple[float, ...], r: float, gate: float
 ) -> np.ndarray | None:
-    """:meth:`LinearBlock.update_state` (buf: unused, for a common signature)."""
-    n = aug.shape[1]
-    v = aug[:, i].copy()  # P[:, i], then the channels' x_i
+    """:meth:`LinearBlock.update_state`."""
+    n = ws.n
+    v = ws.v
+    v[:] = ws.aug[:, i]  # P[:, i], then the channels' x_i
     vl = v.tolist()
     s = vl[i] + r
     y = [zc - xc for zc, xc in zip(z, vl[n:])]
@@ -272,4 +308,4 @@ def update_one(
         yy += e * e
     if not (s > 0.0 and yy <= gate * s):
         return None
-    return _rank1(aug, v, y, s)
+    return _rank1(ws, v, y, s)
