@@ -26,6 +26,7 @@ time since boot (s). Output: :class:`ReplayResult` (a table with one row per tic
 from __future__ import annotations
 
 import bisect
+import itertools
 import math
 import struct
 from collections.abc import Callable
@@ -331,7 +332,7 @@ def _plan_from_setpoints(events: list[Event], meas_pos: list[int], meas: list[An
 
 def _find_start(events: list[Event], meas_pos: list[int], meas: list[Any], start: int, ticks: list[_Tick],
                 config: ReplayConfig, output: str, load_sensor: bool, make_estimator: Callable[..., Any],
-                n_check: int = 8) -> tuple[int, list[_Tick], str]:
+                n_check: int = 8, memo: dict[str, Any] | None = None) -> tuple[int, list[_Tick], str]:
     """Where did the live loop initialize its filter? Without its tick log the tlog does not say: the loop may
     have read a batch of telemetry between initializing and its first tick. Candidates, most likely first: right
     before the first tick, right after each of the last three SYSTEM_TIME markers before it, then 1..8
@@ -354,7 +355,7 @@ def _find_start(events: list[Event], meas_pos: list[int], meas: list[Any], start
         trial = [tk._replace(n_push=tk.n_push + start - cand) for tk in ticks[:n_check]]
         est = make_estimator(config.estimator, config.vehicle, load_sensor=load_sensor, rate_hz=config.rate_hz,
                              delay_s=config.delay_s)
-        _, extra = _replay_ticks(events, meas_pos, meas, cand, trial, est, config, output, load_sensor, None)
+        _, extra = _replay_ticks(events, meas_pos, meas, cand, trial, est, config, output, load_sensor, None, memo)
         if extra.get("cmp_exact") and all(extra["cmp_exact"]):
             how = "filter start found by matching the first setpoints"
             return cand, [tk._replace(n_push=tk.n_push + start - cand) for tk in ticks], how
@@ -379,6 +380,7 @@ def replay(sc: Scan, inv: dict[str, Any], config: ReplayConfig,
     sp_events = [(i, e) for i, e in sp_all if isinstance(e.payload[0], kind_cls)]
     meas_pos = [i for i, e in enumerate(events) if e.kind == "m"]
     meas = [events[i].payload for i in meas_pos]
+    memo: dict[str, Any] = {}  # what the passes of _replay_ticks over these events share
 
     if config.estimate_only:
         start, ticks = 0, []
@@ -391,7 +393,7 @@ def replay(sc: Scan, inv: dict[str, Any], config: ReplayConfig,
         source = "logged setpoints"
         if ticks and config.reference is not None and config.t_from is None:
             start, ticks, how = _find_start(events, meas_pos, meas, start, ticks, config, output, load_sensor,
-                                            make_estimator)
+                                            make_estimator, memo=memo)
             source += f" ({how})"
     else:
         start, ticks = 0, []
@@ -418,24 +420,39 @@ def replay(sc: Scan, inv: dict[str, Any], config: ReplayConfig,
     cols = columns_for(output)
     if ticks:
         data, extra = _replay_ticks(events, meas_pos, meas, start, ticks, estimator, config, output, load_sensor,
-                                    progress)
+                                    progress, memo)
     else:
         source = f"grid at {rate:g} Hz"
         rows, extra = _replay_grid(events, estimator, vehicle, rate, t_from, t_to, load_sensor, output, progress)
-        data = np.array(rows, dtype=float) if rows else np.zeros((0, len(cols)))
+        data = _table(rows, len(cols))
     if progress is not None:
         progress(1.0)
     metrics = _metrics(data, cols, inv, estimator, output, source, extra, config, rate, load_sensor, MASKS)
     return ReplayResult(data, cols, metrics, output)
 
 
+def _logged_mask(events: list[Event]) -> str:
+    """The setpoint mask the logged SET_ATTITUDE_TARGETs used (``attitude`` unless they all share another)."""
+    from offboard.link.setpoints import MASKS
+
+    masks = {round(e.payload[0].type_mask) for e in events
+             if e.kind == "sp" and isinstance(e.payload[0], AttitudeTarget)}
+    inverse = {v: k for k, v in MASKS.items()}
+    return inverse.get(next(iter(masks)), "attitude") if len(masks) == 1 else "attitude"
+
+
 def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], start: int, ticks: list[_Tick],
                   estimator: Any, config: ReplayConfig, output: str, load_sensor: bool,
-                  progress: Callable[[float], None] | None) -> tuple[np.ndarray, dict[str, Any]]:
-    """Replay the controller ticks (see module docstring); returns the table and the comparison figures."""
+                  progress: Callable[[float], None] | None, memo: dict[str, Any] | None = None
+                  ) -> tuple[np.ndarray, dict[str, Any]]:
+    """Replay the controller ticks (see module docstring); returns the table and the comparison figures. memo: what
+    depends on ``events`` only (the logged mask, the autopilot's side events), kept between the calls of one
+    replay (``_find_start`` replays the first ticks once per candidate start)."""
     from offboard import smc
     from offboard.command_mapping import AutopilotModel, CommandMapper, MappingConfig
-    from offboard.link.setpoints import MASKS
+
+    if memo is None:
+        memo = {}
 
     vehicle = config.vehicle
     prior = meas[:start]
@@ -468,10 +485,9 @@ def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], sta
     lag = ActuatorLag(vehicle.motor_time_constant)  # the filter is given what the motors deliver, as live
     mask = config.mask
     if mask is None:
-        masks = {round(e.payload[0].type_mask) for e in events if e.kind == "sp"
-                 and isinstance(e.payload[0], AttitudeTarget)}
-        inverse = {v: k for k, v in MASKS.items()}
-        mask = inverse.get(next(iter(masks)), "attitude") if len(masks) == 1 else "attitude"
+        if "mask" not in memo:
+            memo["mask"] = _logged_mask(events)
+        mask = memo["mask"]
     ap_kw = dict(config.autopilot or {})
     for key in ("attitude_p", "rate_bandwidth"):
         if key in ap_kw:
@@ -485,7 +501,9 @@ def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], sta
     live = config.live
     rows: list[tuple[float, ...]] = []
     # the autopilot's ATTITUDE_TARGET and mode flag, in log order, merged by event index
-    side = [(i, e) for i, e in enumerate(events) if e.kind in ("at", "mode")]
+    if "side" not in memo:
+        memo["side"] = [(i, e) for i, e in enumerate(events) if e.kind in ("at", "mode")]
+    side = memo["side"]
     si = 0
     last_at: tuple[float, ...] = (nan,) * 5
     offboard = nan
@@ -532,12 +550,18 @@ def _replay_ticks(events: list[Event], meas_pos: list[int], meas: list[Any], sta
         else:
             rows.append((t_v, t_ref, tk.lt, 1.0, *est.fx, *est.fy, *est[2:], *last_load, *last_pos, *nan4, *nan4,
                          *nan_sp, *tk.logged, *last_at, offboard, nan, nan))
-    data = np.array(rows, dtype=float).reshape(len(rows), -1)
+    data = _table(rows, len(columns_for(output)))
     extra: dict[str, Any] = {"controller_ran": reference is not None, "origin": [ox, oy], "mapper": mapper,
                              "t_init": t_init, "start_index": start}
     _compare(data, columns_for(output), output, reference is not None, live,
              np.array([tk.live for tk in ticks], dtype=int), extra)
     return data, extra
+
+
+def _table(rows: list[tuple[float, ...]], width: int) -> np.ndarray:
+    """The (len(rows), width) float array of equal-length rows (``np.fromiter`` over the chained rows: about half the
+    cost of ``np.array(rows)``, same values)."""
+    return np.fromiter(itertools.chain.from_iterable(rows), float, len(rows) * width).reshape(len(rows), width)
 
 
 def _quat_angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
