@@ -15,7 +15,8 @@ from collections.abc import Sequence
 
 from estimators.errors import UserError
 
-#: subcommand -> (module, one-line help). Modules are imported lazily so ``slung --help`` stays fast.
+#: subcommand -> (module, one-line help). Only the chosen command's module is imported (``slung --help`` imports
+#: none), which keeps start-up fast and the flight commands free of the emulator's package.
 COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("offboard.sim_cli", "simulate a scenario in one process (plant + estimator + controller)"),
     "bench": ("offboard.bench_cli", "measure the speed of the plant, controller and estimator"),
@@ -33,13 +34,18 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The full parser; commands whose module is not installed are left out."""
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser. Every command is listed; only ``command``'s module is imported and configures its options
+    (none when ``command`` is None: ``slung --help``), so that ``slung fly`` loads nothing of the emulator's
+    package. A chosen command whose module is not installed is left out (argparse then names the choices)."""
     parser = _Parser(prog="slung", description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     for name, (module_name, help_text) in COMMANDS.items():
+        if name != command:
+            sub.add_parser(name, help=help_text, description=help_text)  # listed, not configured
+            continue
         try:
             module = importlib.import_module(module_name)
         except ModuleNotFoundError as exc:
@@ -52,10 +58,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _chosen_command(argv: Sequence[str]) -> str | None:
+    """The subcommand named in ``argv`` (the first argument that is not an option), if it is a known one."""
+    for arg in argv:
+        if not arg.startswith("-"):
+            return arg if arg in COMMANDS else None
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``slung`` console script; returns the process exit code."""
-    parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command = _chosen_command(argv)
+    parser = build_parser(command)
     args = parser.parse_args(argv)
+    if not hasattr(args, "_run"):  # cannot happen: the chosen command is always configured
+        parser.error(f"unknown command {args.command!r}")
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
