@@ -275,7 +275,8 @@ class FlightLoop:
     def event(self, kind: str, reason: str) -> None:
         """Record an event (and log it)."""
         self.events.append(LoopEvent(self.t_vehicle, time.monotonic(), kind, reason))
-        log.warning("%s: %s", kind, reason) if kind not in ("phase",) else log.info("%s: %s", kind, reason)
+        routine = kind == "phase" or (kind.startswith("exit") and self._ending_normally)
+        log.info("%s: %s", kind, reason) if routine else log.warning("%s: %s", kind, reason)
 
     def _injected(self, stage: str, t_ref: float) -> bool:
         return any(s == stage and a <= t_ref <= b for s, a, b in self._inject)
@@ -540,6 +541,7 @@ class FlightLoop:
                 raise _AbortError("signal", f"signal {self._signal} during start-up", self.cfg.signal_action)
             self.event("phase", "offboard control started")
             self._fly(origin)
+            self._ending_normally = True  # the exit is routine, not a warning
             end_state = self._finish(self.cfg.end_action, "end of the reference")
         except _AbortError as ab:
             ended_by = ab.kind
@@ -682,6 +684,7 @@ class FlightLoop:
             self._check_swing(est)
 
     _prev_sent: float | None = None
+    _ending_normally = False
 
     def _watchdogs(self, t_v: float, now: float) -> None:
         cfg = self.cfg
