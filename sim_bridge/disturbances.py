@@ -1,6 +1,6 @@
 """Bounded, band-limited, seeded random disturbances (the paper's Figure 7, whose amplitudes it does not give).
 
-The environment acting on the plant: used by ``slung sim`` (``offboard.scenarios``) and by the emulator
+The environment acting on the plant: used by ``slung sim`` (``offboard.sim`` builds them from a scenario's plant setup) and by the emulator
 (``slung emulate --disturbance paper``), which may not import ``offboard``.
 
 Each channel is a sum of sinusoids with random frequencies in a band, random phases and random weights,
