@@ -1,7 +1,7 @@
 """Bounded, band-limited, seeded random disturbances (the paper's Figure 7, whose amplitudes it does not give).
 
-The environment acting on the plant: used by ``slung sim`` (``offboard.sim`` builds them from a scenario's plant setup) and by the emulator
-(``slung emulate --disturbance paper``), which may not import ``offboard``.
+The environment acting on the plant: used by ``slung sim`` (``offboard.sim`` builds them from a scenario's plant
+setup) and by the emulator (``slung emulate --disturbance paper``), which may not import ``offboard``.
 
 Each channel is a sum of sinusoids with random frequencies in a band, random phases and random weights,
 scaled so that the sum of the amplitudes equals the channel's bound: the signal can never exceed it. A smooth
