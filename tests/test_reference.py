@@ -482,10 +482,14 @@ def test_examples_in_docs_load(tmp_path):
         f.write_text(text)
         ref = load_trajectory_file(f)
         assert all(math.isfinite(v) for ch in ref.sample(ref.duration / 2) for v in ch)
-    (code,) = re.findall(r"```python\n(from offboard.*?)```", doc, flags=re.S)
+    examples = re.findall(r"```python\n(from .*?)```", doc, flags=re.S)  # the runnable ones (not the Protocol)
+    assert len(examples) == 2
     scope: dict = {}
-    exec(code, scope)
+    exec(examples[0], scope)
     assert scope["s"].z[0] == 2.0 and scope["s"].fx[1] != 0.0
+    scope = {}
+    exec(examples[1], scope)  # the feasibility check's example
+    assert scope["result"].feasible and scope["result"].warnings  # rest-to-rest: its large swing is warned of
 
 
 def test_numpy_inputs_and_non_finite_time():
