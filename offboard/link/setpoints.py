@@ -131,7 +131,8 @@ def decode(msg: Any) -> Setpoint | None:
     """The setpoint carried by a received SET_ATTITUDE_TARGET / SET_ACTUATOR_CONTROL_TARGET (tests, replay)."""
     kind = msg.get_type()
     if kind == "SET_ATTITUDE_TARGET":
-        return AttitudeTarget(tuple(float(v) for v in msg.q), float(msg.body_roll_rate),  # type: ignore[arg-type]
+        q = msg.q
+        return AttitudeTarget((float(q[0]), float(q[1]), float(q[2]), float(q[3])), float(msg.body_roll_rate),
                               float(msg.body_pitch_rate), float(msg.body_yaw_rate), float(msg.thrust),
                               int(msg.type_mask))
     if kind == "SET_ACTUATOR_CONTROL_TARGET" and msg.group_mlx == 0:

@@ -167,12 +167,15 @@ class TelemetryDecoder:
             m = load_angle_from_ned(_vehicle_time_us(msg.time_usec), msg.x, msg.y)
         else:
             return None
-        if not is_finite(m):
+        if not (math.isfinite(sum(m)) or is_finite(m)):  # a finite sum proves every field finite (else look)
             self._count("refused_nonfinite")
             return None
-        if kind in IMU_RANK:
-            self.imu_rank = IMU_RANK[kind]
-        self._count(type(m).__name__)
+        rank = IMU_RANK.get(kind)
+        if rank is not None:
+            self.imu_rank = rank
+        name = type(m).__name__
+        counts = self.counts
+        counts[name] = counts.get(name, 0) + 1
         return m
 
 
