@@ -36,9 +36,10 @@ class PlantSetup:
     starts wherever the vehicle is and meets whatever wind there is).
 
     position: vehicle position at t = 0 (m, world NWU); cable: direction vehicle -> load at t = 0 (any non-zero
-    length, world); cable_rate: its rate (1/s; made tangent to the sphere by the plant); velocity, attitude and
-    body rates start at 0. disturbance: ``None`` or ``"paper"`` (``sim_bridge.disturbances``' bounded random
-    forces and yaw torque, default bounds, onset at the scenario's ``disturbance_start``); seed: its seed.
+    length, world); cable_rate: its rate (1/s; made tangent to the sphere by the plant); heading: initial yaw
+    (rad); velocity, roll, pitch and body rates start at 0. disturbance: ``None`` or ``"paper"``
+    (``sim_bridge.disturbances``' bounded random forces and yaw torque, default bounds, onset at the scenario's
+    ``disturbance_start``); seed: its seed.
     """
 
     position: tuple[float, float, float]
@@ -46,6 +47,7 @@ class PlantSetup:
     cable_rate: tuple[float, float, float] = (0.0, 0.0, 0.0)
     disturbance: str | None = None
     seed: int = 0
+    heading: float = 0.0
 
 
 @dataclass

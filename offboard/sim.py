@@ -55,7 +55,8 @@ def plant_scenario(scenario: Scenario) -> Scenario:
         disturbance = RandomDisturbance(spec, s.seed)
     elif s.disturbance is not None:
         raise ValueError(f"scenario {scenario.name!r}: unknown disturbance {s.disturbance!r} (known: paper)")
-    state = dynamics.make_state(position=s.position, cable=s.cable, cable_rate=s.cable_rate)
+    state = dynamics.make_state(position=s.position, euler=(0.0, 0.0, s.heading), cable=s.cable,
+                                cable_rate=s.cable_rate)
     return replace(scenario, initial_state=state, disturbance=disturbance)
 
 

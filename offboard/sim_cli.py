@@ -1,13 +1,16 @@
 """``slung sim``: run a scenario in one process and write metrics, time series and figures.
 
-Usage: ``slung sim --scenario paper [--switching sign|smooth] [--epsilon E] [--duration S] [--seed N]
-[--sensors ideal|px4-typical] [--estimator truth|kf] [--no-load-sensor] [--vehicle FILE] --out DIR``
+Usage: ``slung sim (--scenario NAME | --trajectory FILE) [--switching sign|smooth] [--epsilon E] [--duration S]
+[--seed N] [--sensors ideal|px4-typical|px4-fast] [--estimator truth|kf] [--no-load-sensor] [--vehicle FILE]
+--out DIR`` (all options: ``docs/usage.md``).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+from pathlib import Path
 from typing import Any
 
 from estimators.errors import UserError
@@ -17,14 +20,18 @@ from offboard import sim as sim_mod
 from offboard import smc
 from offboard.cli_args import add_controller_arguments, non_negative_int, positive_float
 from offboard.outputs import prepare_output_dir
+from offboard.runlog import PlantSetup, Scenario
 from offboard.scenarios import SCENARIOS, make_scenario
 from sim_bridge.sensors import PRESETS as SENSOR_PRESETS
 
 
 def configure(p: argparse.ArgumentParser) -> None:
     """Arguments of ``slung sim``."""
-    p.add_argument("--scenario", required=True, metavar="NAME",
-                   help=f"scenario to run: {', '.join(SCENARIOS)}")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--scenario", metavar="NAME", help=f"scenario to run: {', '.join(SCENARIOS)}")
+    g.add_argument("--trajectory", metavar="FILE",
+                   help="trajectory file (TOML, docs/references.md): the vehicle starts at rest at its start, "
+                        "no disturbance")
     add_controller_arguments(p)
     p.add_argument("--duration", type=positive_float, metavar="S",
                    help="simulated time in s (default: the scenario's)")
@@ -53,7 +60,8 @@ def run_cli(args: argparse.Namespace) -> dict[str, Any]:
 
     out_dir = prepare_output_dir(args.out)
     vehicle = load_vehicle(args.vehicle)
-    scenario = make_scenario(args.scenario, duration=args.duration, seed=args.seed)
+    scenario = (make_scenario(args.scenario, duration=args.duration, seed=args.seed) if args.scenario
+                else trajectory_scenario(args.trajectory, args.duration, args.seed))
     plant_dt = 0.001
     n_sub = round(1.0 / (args.control_rate * plant_dt))
     if n_sub < 1 or abs(n_sub * plant_dt * args.control_rate - 1.0) > 1e-9:
@@ -74,6 +82,7 @@ def run_cli(args: argparse.Namespace) -> dict[str, Any]:
         actuators=args.actuators,
     )
     params = smc.ControllerParams.for_vehicle(vehicle, switching=args.switching, epsilon=args.epsilon)
+    _print_feasibility(scenario, vehicle, params)
     progress = _progress_printer() if sys.stderr.isatty() else None
     log = sim_mod.run(scenario, vehicle, params, config, progress=progress)
     m = metrics_mod.compute(log)
@@ -84,6 +93,30 @@ def run_cli(args: argparse.Namespace) -> dict[str, Any]:
     print(metrics_mod.format_table(m))
     print(f"report: {out_dir.resolve()}")
     return m
+
+
+def trajectory_scenario(path: str, duration: float | None, seed: int) -> Scenario:
+    """A trajectory file as a scenario: the vehicle at rest at the reference's start (position, height,
+    heading), the load hanging still below it, no disturbance; ``duration`` defaults to the file's."""
+    from offboard.reference import load_trajectory_file
+
+    ref = load_trajectory_file(path)
+    dur = duration or ref.duration
+    if not math.isfinite(dur) or dur <= 0:
+        raise UserError(f"{path}: the trajectory has no duration: give --duration")
+    r0 = ref.sample(0.0)
+    return Scenario(f"trajectory:{Path(path).name}", f"trajectory file {path}", dur, ref,
+                    setup=PlantSetup(position=(r0.fx[0], r0.fy[0], r0.z[0]), heading=r0.psi[0], seed=seed))
+
+
+def _print_feasibility(scenario: Scenario, vehicle: Any, params: smc.ControllerParams) -> None:
+    """The pre-flight feasibility check's findings (``offboard.feasibility``), as warnings only: a simulation is
+    where an infeasible reference may be explored."""
+    from offboard.feasibility import FeasibilityLimits, check_reference
+
+    res = check_reference(scenario.reference, scenario.duration, vehicle, FeasibilityLimits.from_config(params))
+    for msg in res.messages:
+        print(f"feasibility check: {msg}", file=sys.stderr)
 
 
 def _progress_printer() -> Any:
