@@ -193,8 +193,12 @@ def format_table(metrics: dict[str, Any]) -> str:
     if metrics["cable"]["slack_steps"]:
         lines.append(f"WARNING: the cable was slack for {metrics['cable']['slack_steps']} plant steps "
                      f"(min tension {metrics['cable']['min_tension_n']:.3f} N): the rigid-cable model did not hold")
-    lines.append(
-        f"simulated {metrics['duration_s']:.1f} s in {metrics['wall_time_s']:.2f} s "
-        f"({metrics['realtime_factor']:.1f}x real time)"
-    )
+    if metrics.get("config", {}).get("sensors") == "mavlink":  # a flight (slung fly / demo), not a simulation
+        lines.append(f"flew {metrics['duration_s']:.1f} s under offboard control, {metrics['wall_time_s']:.1f} s "
+                     "from connection to the end")
+    else:
+        lines.append(
+            f"simulated {metrics['duration_s']:.1f} s in {metrics['wall_time_s']:.2f} s "
+            f"({metrics['realtime_factor']:.1f}x real time)"
+        )
     return "\n".join(lines)
