@@ -211,7 +211,9 @@ def fly(args: argparse.Namespace, *, lockstep: bool, takeoff: bool = True, truth
         if m.get("rms"):
             print(metrics_mod.format_table(m))
         lp = m["loop"]
-        print(f"loop: {lp['rate_hz_achieved'] or 0:.1f} Hz, compute p50/p99 {lp['compute_us_p50'] or 0:.0f}/"
+        pace = (f"lockstep at {cfg.rate_hz:g} Hz of vehicle time ({(lp['rate_hz_achieved'] or 0) / cfg.rate_hz:.1f}x "
+                f"real time)" if cfg.lockstep else f"{lp['rate_hz_achieved'] or 0:.1f} Hz")
+        print(f"loop: {pace}, compute p50/p99 {lp['compute_us_p50'] or 0:.0f}/"
               f"{lp['compute_us_p99'] or 0:.0f} us, latency p50/p99 {lp['latency_us_p50'] or 0:.0f}/"
               f"{lp['latency_us_p99'] or 0:.0f} us, missed {lp['missed_deadlines']}")
         for w in result.warnings:
