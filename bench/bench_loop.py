@@ -7,7 +7,10 @@ setpoint latency p50 / p99, and missed deadlines (a setpoint more than 1.5 perio
 compute time above one period). The machine's load average is printed beside them: the emulator's 1 kHz plant and
 the loop share the cores with whatever else runs.
 
-    python bench/bench_loop.py [--rates 250 500] [--duration 60] [--rt-priority N] [--out DIR]
+    python bench/bench_loop.py [--rates 250 500] [--duration 60] [--rt-priority N] [--pin] [--out DIR]
+
+``--pin`` puts the emulator on the last CPU and the loop on the others (``os.sched_setaffinity``; restored after): on a
+vehicle the autopilot is another computer, while here its 1 kHz plant otherwise shares the loop's core and caches.
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ def free_port() -> int:
     return port
 
 
-def one(rate: float, duration: float, out: Path, rt_priority: int = 0) -> dict:
+def one(rate: float, duration: float, out: Path, rt_priority: int = 0, pin: bool = False) -> dict:
     from offboard.demo_cli import configure
     from offboard.fly_cli import fly
 
@@ -44,6 +47,11 @@ def one(rate: float, duration: float, out: Path, rt_priority: int = 0) -> dict:
     emu = subprocess.Popen([sys.executable, "-m", "sim_bridge.emulator_cli", "--realtime", "--mavlink",
                             f"udpout:127.0.0.1:{port}", "--summary", str(summary)], cwd=ROOT,
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    cpus = sorted(os.sched_getaffinity(0))
+    pinned = pin and len(cpus) >= 2
+    if pinned:
+        os.sched_setaffinity(emu.pid, {cpus[-1]})
+        os.sched_setaffinity(0, set(cpus[:-1]))
     time.sleep(1.5)  # let the emulator import and bind before the loop (maybe at real-time priority) starts
     p = argparse.ArgumentParser()
     configure(p)
@@ -56,8 +64,11 @@ def one(rate: float, duration: float, out: Path, rt_priority: int = 0) -> dict:
     finally:
         emu.send_signal(signal.SIGTERM)
         emu.wait(timeout=10)
+        if pinned:
+            os.sched_setaffinity(0, set(cpus))
     lp = m["loop"]
-    return {"rate_hz": rate, "rt_priority": rt_priority, "ended_by": m["flight"]["ended_by"], "load_before": load0[0],
+    return {"rate_hz": rate, "rt_priority": rt_priority, "pinned": pinned, "ended_by": m["flight"]["ended_by"],
+            "load_before": load0[0],
             "load_after": os.getloadavg()[0], **{k: lp[k] for k in (
                 "rate_hz_achieved", "ticks", "elapsed_s", "compute_us_p50", "compute_us_p99", "estimator_us_p50",
                 "estimator_us_p99", "latency_us_p50", "latency_us_p99", "missed_deadlines", "missed_fraction",
@@ -71,18 +82,20 @@ def main() -> int:
     ap.add_argument("--out", default=None)
     ap.add_argument("--rt-priority", type=int, default=0,
                     help="SCHED_FIFO priority of the loop (0: normal scheduling); the emulator stays normal")
+    ap.add_argument("--pin", action="store_true", help="emulator on the last CPU, the loop on the others")
     a = ap.parse_args()
     out = Path(a.out or tempfile.mkdtemp(prefix="bench-loop-"))
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for r in a.rates:
         t0 = time.monotonic()
-        rows.append(one(r, a.duration, out, a.rt_priority))
+        rows.append(one(r, a.duration, out, a.rt_priority, a.pin))
         rows[-1]["wall_s"] = time.monotonic() - t0
-    print(f"{'rate':>6} {'prio':>4} {'achieved':>9} {'compute p50/p99 us':>19} {'estimator p50/p99':>18} "
+    print(f"{'rate':>6} {'prio':>4} {'pin':>3} {'achieved':>9} {'compute p50/p99 us':>19} {'estimator p50/p99':>18} "
           f"{'latency p50/p99 us':>19} {'missed':>12} {'load':>5} ended")
     for r in rows:
-        print(f"{r['rate_hz']:>6.0f} {r['rt_priority']:>4} {r['rate_hz_achieved'] or 0:>9.1f} "
+        print(f"{r['rate_hz']:>6.0f} {r['rt_priority']:>4} {'yes' if r['pinned'] else 'no':>3} "
+              f"{r['rate_hz_achieved'] or 0:>9.1f} "
               f"{r['compute_us_p50'] or 0:>9.0f}/{r['compute_us_p99'] or 0:<9.0f} "
               f"{r['estimator_us_p50'] or 0:>8.0f}/{r['estimator_us_p99'] or 0:<9.0f} "
               f"{r['latency_us_p50'] or 0:>9.0f}/{r['latency_us_p99'] or 0:<9.0f} "
