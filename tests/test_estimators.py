@@ -432,3 +432,25 @@ def test_model_inputs_are_exact_at_the_true_state() -> None:
     assert -w2 * (ax + ny) + w[3] == pytest.approx((axd2 - axd) / h, rel=1e-5)
     assert w[5] == pytest.approx(dynamics.derivative(0.0, x, u, P)[5], rel=1e-12)
     assert abs(w[1]) > 1.0  # the remainder matters at these angles
+
+
+def test_van_loan_and_gate_constants_are_filterpys_and_scipys_exactly() -> None:
+    """The filter does not import filterpy.common / scipy.stats at run time (half a second at every start of
+    slung fly / replay): its Van Loan discretization must equal filterpy's and its stored default gate quantiles
+    scipy's chi-square, bit for bit, so that neither can drift from the library it stands in for."""
+    from filterpy.common import van_loan_discretization as filterpy_van_loan
+    from scipy.stats import chi2
+
+    from estimators import kf as kf_mod
+    from estimators.linear_block import van_loan_discretization
+
+    rng = np.random.default_rng(11)
+    for n, dt in ((2, 0.004), (4, 0.01), (8, 0.0033)):
+        f = rng.normal(size=(n, n))
+        g = rng.normal(size=(n, 1 + n // 2))
+        ours = van_loan_discretization(f, g, dt)
+        theirs = filterpy_van_loan(f, g, dt)
+        for a, b in zip(ours, theirs, strict=True):
+            np.testing.assert_array_equal(a, b)
+    assert kf_mod._CHI2_9999 and all(v == chi2.ppf(0.9999, dof) for dof, v in kf_mod._CHI2_9999.items())
+    assert kf_mod.chi2_quantile(0.99, 3) == pytest.approx(chi2.ppf(0.99, 3), rel=1e-14)
