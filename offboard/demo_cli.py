@@ -33,7 +33,7 @@ from typing import Any
 
 from estimators.errors import UserError
 from offboard.cli_args import non_negative_int, positive_float
-from offboard.fly_cli import add_flight_arguments, fly
+from offboard.fly_cli import add_flight_arguments, check_rate, fly
 from offboard.outputs import prepare_output_dir, write_json_atomic
 from sim_bridge.sensors import PRESETS as SENSOR_PRESETS
 
@@ -155,6 +155,7 @@ def run_demo(args: argparse.Namespace, *, inject: tuple[tuple[str, float, float]
     if args.flavor == "ardupilot" and args.output == "actuator":
         raise UserError("ArduPilot has no actuator-control setpoint (SET_ACTUATOR_CONTROL_TARGET is PX4 <= v1.13): "
                         "use --output attitude with --flavor ardupilot")
+    check_rate(args.rate)
     if not (0.0 <= args.loss < 1.0):
         raise UserError(f"--loss must be in [0, 1), got {args.loss!r}")
     if not (0.0 <= args.noise <= 10.0):

@@ -373,10 +373,15 @@ def write_flight_outputs(out_dir: Path, result: FlightResult, scenario: Scenario
     return m
 
 
+def check_rate(rate_hz: float) -> None:
+    """UserError unless ``--rate`` is within the loop's documented limits."""
+    if not (RATE_MIN_HZ <= rate_hz <= RATE_MAX_HZ):
+        raise UserError(f"--rate must be within {RATE_MIN_HZ:g}..{RATE_MAX_HZ:g} Hz, got {rate_hz:g}")
+
+
 def run(args: argparse.Namespace) -> int:
     """Entry point of ``slung fly``: 0 when the reference was flown to its end, 1 when a watchdog or a signal ended
     the flight early (the vehicle was left in hold / landing)."""
-    if not (RATE_MIN_HZ <= args.rate <= RATE_MAX_HZ):
-        raise UserError(f"--rate must be within {RATE_MIN_HZ:g}..{RATE_MAX_HZ:g} Hz, got {args.rate:g}")
+    check_rate(args.rate)
     m, _ = fly(args, lockstep=args.lockstep, takeoff=not args.no_takeoff, backend=args.backend)
     return 0 if m.get("flight", {}).get("ended_by") == "completed" else 1

@@ -152,3 +152,8 @@ def test_demo_refuses_noise_with_sensor_models(tmp_path) -> None:
 def test_ardupilot_actuator_output_is_refused(tmp_path) -> None:
     with pytest.raises(UserError, match="ArduPilot has no actuator"):
         run_demo(demo_args(tmp_path, "--flavor", "ardupilot", "--output", "actuator"), quiet=True)
+
+
+def test_demo_rate_out_of_range_is_refused_in_the_rate_s_words(tmp_path) -> None:
+    with pytest.raises(UserError, match=r"--rate must be within 20\.\.1000 Hz"):
+        run_demo(demo_args(tmp_path, "--rate", "5000"), quiet=True)
