@@ -367,9 +367,17 @@ class FlightLoop:
                                                                     *self.target)))
         self.last_send_local = time.monotonic()
 
+    def _abort_on_signal(self) -> None:
+        """Raise the signal abort now if Ctrl-C / SIGTERM arrived: the management phases (stream requests, arming,
+        the autopilot's take-off, the mode switch) wait in loops that call the idle callbacks below, and a signal
+        must end them at once (hold or land from where the vehicle is), not after the take-off has finished."""
+        if self._signal is not None:
+            raise _AbortError("signal", f"signal {self._signal} before the flight", self.cfg.signal_action)
+
     def stream_hover(self) -> None:
         """Send one keep-alive setpoint (the position goal before control starts, else a hover attitude) and pace
         to the loop rate (management's idle callback while streaming)."""
+        self._abort_on_signal()
         if self.goal is not None:
             self._send_goal()
         else:
@@ -383,6 +391,7 @@ class FlightLoop:
                 time.sleep(min(0.0005, max(0.0, t_end - time.monotonic())))
 
     def _idle_read(self) -> None:
+        self._abort_on_signal()
         self._read()
 
     def _prime(self, seconds: float) -> None:

@@ -230,3 +230,35 @@ def test_sigterm_in_flight_ends_in_hold_or_land(tmp_path: Path, action: str) -> 
         assert summary["mode"] == "AUTO.LAND" and not summary["armed"] and summary["on_ground"]
     m = json.loads((out / "metrics.json").read_text())
     assert m["flight"]["ended_by"] == "signal"
+
+
+def test_sigint_during_the_take_off_holds_at_once(tmp_path: Path) -> None:
+    """Ctrl-C while the autopilot climbs (AUTO.TAKEOFF, before any offboard control) ends the run at once: Hold
+    where the vehicle is, never OFFBOARD, not after the climb to the reference's start height has finished (what
+    the loop used to do: its management phases did not look at the signal)."""
+    port = free_udp_port()
+    emu = EmulatorThread("px4", port, lockstep=True, period=0.004, vehicle=None, attitude_model="rigid",
+                         noise=0.0, loss=0.0, tlog=None).start()
+    out = tmp_path / "fly"
+    cmd = [sys.executable, "-m", "offboard.cli", "fly", "--connect", f"udpin:127.0.0.1:{port}", "--scenario",
+           "hover", "--duration", "60", "--lockstep", "--no-figures", "--out", str(out)]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        t_end = time.monotonic() + 40.0
+        while emu.ap.mode.name != "AUTO.TAKEOFF" and time.monotonic() < t_end and proc.poll() is None:
+            time.sleep(0.005)
+        assert emu.ap.mode.name == "AUTO.TAKEOFF", proc.communicate()[1][-1500:]
+        proc.send_signal(signal.SIGINT)
+        rc = proc.wait(timeout=30.0)
+        height_at_exit = emu.ap.x[2]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        summary = emu.stop()
+    assert rc == 1
+    modes = [name for _, name in summary["modes"]]
+    assert "OFFBOARD" not in modes and modes[-1] == "AUTO.LOITER" and summary["armed"]
+    assert height_at_exit < 0.5  # the take-off to the hover's start height (1 m) was cut short
+    ev = json.loads((out / "events.json").read_text())
+    assert [e["reason"] for e in ev["loop"] if e["kind"] == "signal"] == ["signal 2 before the flight"]
