@@ -47,17 +47,23 @@ def test_an_infeasible_trajectory_is_refused_before_connecting(tmp_path: Path,
     sock.close()
 
 
-def test_a_feasible_trajectory_flies_and_records_the_check(tmp_path: Path) -> None:
-    traj = tmp_path / "gentle.toml"
-    traj.write_text(GENTLE, encoding="utf-8")
+def _fly_emulated(tmp_path: Path, text: str, *extra: str) -> tuple[dict, Path, dict]:
+    """Fly the trajectory ``text`` against the bundled emulator (PX4, lockstep): (metrics, folder, emulator)."""
+    traj = tmp_path / "traj.toml"
+    traj.write_text(text, encoding="utf-8")
     port = free_udp_port()
     emu = EmulatorThread("px4", port, lockstep=True, period=0.004, vehicle=None, attitude_model="rigid",
                          noise=0.0, loss=0.0, tlog=None).start()
     try:
-        m, folder = fly(_fly_args(port, traj, tmp_path / "f"), lockstep=True, truth_probe=emu.truth, quiet=True,
-                        on_reference_start=emu.set_reference_start)
+        m, folder = fly(_fly_args(port, traj, tmp_path / "f", *extra), lockstep=True, truth_probe=emu.truth,
+                        quiet=True, on_reference_start=emu.set_reference_start)
     finally:
-        emu.stop()
+        summary = emu.stop()
+    return m, folder, summary
+
+
+def test_a_feasible_trajectory_flies_and_records_the_check(tmp_path: Path) -> None:
+    m, folder, _ = _fly_emulated(tmp_path, GENTLE)
     assert m["flight"]["ended_by"] == "completed"
     rec = json.loads((folder / "metrics.json").read_text())["feasibility"]
     assert rec["feasible"] and not rec["forced"]
@@ -65,16 +71,7 @@ def test_a_feasible_trajectory_flies_and_records_the_check(tmp_path: Path) -> No
 
 
 def test_force_flies_it_and_the_watchdog_catches_what_the_check_predicted(tmp_path: Path) -> None:
-    traj = tmp_path / "hop.toml"
-    traj.write_text(HOP, encoding="utf-8")
-    port = free_udp_port()
-    emu = EmulatorThread("px4", port, lockstep=True, period=0.004, vehicle=None, attitude_model="rigid",
-                         noise=0.0, loss=0.0, tlog=None).start()
-    try:
-        m, _ = fly(_fly_args(port, traj, tmp_path / "f", "--force"), lockstep=True, truth_probe=emu.truth,
-                   quiet=True, on_reference_start=emu.set_reference_start)
-    finally:
-        summary = emu.stop()
+    m, _, summary = _fly_emulated(tmp_path, HOP, "--force")
     assert m["feasibility"]["forced"] and not m["feasibility"]["feasible"]
     assert m["flight"]["ended_by"] == "swing_limit"
     assert summary["armed"] and summary["mode"] == "AUTO.LOITER"  # left holding, as every abort
