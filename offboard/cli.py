@@ -72,8 +72,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = _chosen_command(argv)
     parser = build_parser(command)
     args = parser.parse_args(argv)
-    if not hasattr(args, "_run"):  # cannot happen: the chosen command is always configured
-        parser.error(f"unknown command {args.command!r}")
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
