@@ -19,7 +19,6 @@ import argparse
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -29,20 +28,14 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-
-def free_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
+from offboard.demo_cli import free_udp_port  # noqa: E402 - after the path set-up
 
 
 def one(rate: float, duration: float, out: Path, rt_priority: int = 0, pin: bool = False) -> dict:
     from offboard.demo_cli import configure
     from offboard.fly_cli import fly
 
-    port = free_port()
+    port = free_udp_port()
     summary = out / f"emulator-{rate:g}.json"
     emu = subprocess.Popen([sys.executable, "-m", "sim_bridge.emulator_cli", "--realtime", "--mavlink",
                             f"udpout:127.0.0.1:{port}", "--summary", str(summary)], cwd=ROOT,

@@ -256,6 +256,11 @@ class Manager:
         elif res != MAV_RESULT_ACCEPTED:
             raise UserError(f"take-off refused (result {res}): " + "; ".join(self.conn.statustexts[-3:]))
         self.note("takeoff", f"to {height:.2f} m above home (result {res})")
+        self.wait_for_takeoff(height, height_now, timeout, idle)
+
+    def wait_for_takeoff(self, height: float, height_now: Callable[[], float | None], timeout: float,
+                         idle: Idle | None = None) -> None:
+        """Wait until the vehicle is within 0.1 m of ``height`` (m above home); UserError after ``timeout`` s."""
 
         def reached() -> bool:
             h = height_now()

@@ -164,14 +164,7 @@ class MavsdkManager(Manager):
         res = self._await("takeoff", action.takeoff_async, idle)
         if not self._ok(res):
             raise UserError(f"MAVSDK take-off refused: {res}")
-
-        def reached() -> bool:
-            h = height_now()
-            return h is not None and h >= height - 0.1
-
-        if not self.wait_for(reached, timeout, idle):
-            raise UserError(f"take-off did not reach {height:.2f} m within {timeout:g} s")
-        self.note("takeoff_done", f"height {height_now():.2f} m")
+        self.wait_for_takeoff(height, height_now, timeout, idle)
 
     def set_mode(self, role: str, idle: Callable[[], None] | None = None, retries: int = 3) -> bool:
         """hold / land through Action; offboard as raw DO_SET_MODE (module docstring)."""
