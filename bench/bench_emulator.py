@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import socket
 import subprocess
@@ -28,11 +27,13 @@ from typing import Any
 os.environ.setdefault("MAVLINK20", "1")
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
 
+from emulator_helpers import HoldController, emulator_process  # noqa: E402
 from pymavlink.dialects.v20 import common as mavlink2  # noqa: E402
 
-from estimators.frames import euler_to_quaternion  # noqa: E402
-from estimators.vehicle import Vehicle  # noqa: E402
+from estimators.model.frames import euler_to_quaternion  # noqa: E402
+from estimators.model.vehicle import Vehicle  # noqa: E402
 
 
 class RawClient:
@@ -64,9 +65,8 @@ class RawClient:
 
 
 def start(args: list[str], port: int) -> subprocess.Popen:
-    """The emulator as a subprocess sending to ``port``."""
-    cmd = [sys.executable, "-m", "sim_bridge.emulator_cli", "--mavlink", f"udpout:127.0.0.1:{port}", *args]
-    return subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    """The emulator as a subprocess sending to ``port`` (its JSON summary on stdout)."""
+    return emulator_process(port, *args, stderr=subprocess.DEVNULL)
 
 
 def stop(proc: subprocess.Popen) -> dict[str, Any]:
@@ -98,20 +98,16 @@ def lockstep_flight(seconds: float, period: float = 0.01, altitude: float = 2.0)
         mav = c.mav
         for msgid in (32, 30):
             mav.command_long_send(1, 1, 511, 0, msgid, period * 1e6, 0, 0, 0, 0, 0)
-        hover, g = v.hover_thrust_normalized, v.gravity
+        hold = HoldController(v, (0.0, 0.0, -altitude))
         pos = vel = (0.0, 0.0, 0.0)
         sim_ms, steps, start_ms, t0 = 0, 0, None, time.monotonic()
         swing_max = 0.0
         err_max = 0.0
         while True:
-            ax = 1.0 * (0.0 - pos[0]) - 1.8 * vel[0]
-            ay = 1.0 * (0.0 - pos[1]) - 1.8 * vel[1]
-            az = 4.0 * (-altitude - pos[2]) - 4.0 * vel[2]
-            pitch = max(-0.35, min(0.35, -ax / g))
-            roll = max(-0.35, min(0.35, ay / g))
-            thrust = hover * (g - az) / g / (math.cos(roll) * math.cos(pitch)) if steps >= 20 else 0.0
-            mav.set_attitude_target_send(sim_ms, 1, 1, 7, list(euler_to_quaternion(roll, pitch, 0.0)), 0, 0, 0,
-                                         max(0.0, min(1.0, thrust)))
+            roll, pitch, thrust = hold.update(pos, vel)
+            mav.set_attitude_target_send(
+                sim_ms, 1, 1, 7, list(euler_to_quaternion(roll, pitch, 0.0)), 0, 0, 0, thrust if steps >= 20 else 0.0
+            )
             steps += 1
             done = False
             while not done:
@@ -139,19 +135,34 @@ def lockstep_flight(seconds: float, period: float = 0.01, altitude: float = 2.0)
     finally:
         summary = stop(proc)
         c.close()
-    return {"sim_s": sim, "wall_s": round(wall, 3), "realtime_factor": round(sim / wall, 2),
-            "handshakes": steps, "final_altitude_m": round(-pos[2], 4),
-            "max_altitude_error_after_10s_m": round(err_max, 4), "mode": summary.get("mode"),
-            "emulator_setpoints": summary.get("counters", {}).get("setpoints_accepted")}
+    return {
+        "sim_s": sim,
+        "wall_s": round(wall, 3),
+        "realtime_factor": round(sim / wall, 2),
+        "handshakes": steps,
+        "final_altitude_m": round(-pos[2], 4),
+        "max_altitude_error_after_10s_m": round(err_max, 4),
+        "mode": summary.get("mode"),
+        "emulator_setpoints": summary.get("counters", {}).get("setpoints_accepted"),
+    }
 
 
 def stream_rates(window: float, attitude_hz: float = 500.0) -> dict[str, Any]:
     """Real-time stream rates (by the messages' own time stamps and by wall clock) vs configured."""
     c = RawClient()
     proc = start(["--realtime"], c.port)
-    configured = {"ATTITUDE": attitude_hz, "ATTITUDE_QUATERNION": 50.0, "HIGHRES_IMU": 50.0,
-                  "LOCAL_POSITION_NED": 30.0, "ODOMETRY": 100.0, "GLOBAL_POSITION_INT": 50.0, "DEBUG_VECT": 50.0,
-                  "SYS_STATUS": 5.0, "ATTITUDE_TARGET": 10.0, "HEARTBEAT": 1.0}
+    configured = {
+        "ATTITUDE": attitude_hz,
+        "ATTITUDE_QUATERNION": 50.0,
+        "HIGHRES_IMU": 50.0,
+        "LOCAL_POSITION_NED": 30.0,
+        "ODOMETRY": 100.0,
+        "GLOBAL_POSITION_INT": 50.0,
+        "DEBUG_VECT": 50.0,
+        "SYS_STATUS": 5.0,
+        "ATTITUDE_TARGET": 10.0,
+        "HEARTBEAT": 1.0,
+    }
     try:
         wait_for(c, "LOCAL_POSITION_NED")
         c.mav.command_long_send(1, 1, 511, 0, 30, 1e6 / attitude_hz, 0, 0, 0, 0, 0)
@@ -175,8 +186,12 @@ def stream_rates(window: float, attitude_hz: float = 500.0) -> dict[str, Any]:
         ts = arrivals.get(name, [])
         # wall-clock rate between the first and the last arrival (no window-edge quantization)
         got = (len(ts) - 1) / (ts[-1] - ts[0]) if len(ts) > 2 else 0.0
-        out[name] = {"configured_hz": hz, "measured_hz": round(got, 2), "messages": len(ts),
-                     "error_pct": round(100 * (got - hz) / hz, 2)}
+        out[name] = {
+            "configured_hz": hz,
+            "measured_hz": round(got, 2),
+            "messages": len(ts),
+            "error_pct": round(100 * (got - hz) / hz, 2),
+        }
     return out
 
 
@@ -184,9 +199,9 @@ def step_cost(steps: int = 20000) -> dict[str, Any]:
     """In process: cost of one 1 kHz plant step with the inner loops, mixer, motors and default telemetry
     (PX4 flavour, offboard attitude hover; packets go to a closed loopback port), and of the bare RK4 step."""
     from sim_bridge.autopilot import Autopilot
-    from sim_bridge.dynamics import hover_input, make_state, plant_params, rk4_step
     from sim_bridge.emulator import Emulator
-    from sim_bridge.link import Link, LinkFaults
+    from sim_bridge.plant.dynamics import hover_input, make_state, plant_params, rk4_step
+    from sim_bridge.protocol.link import Link, LinkFaults
 
     v = Vehicle()
     port = RawClient()  # a bound socket nobody reads: sendto never blocks, nothing is refused
@@ -211,8 +226,12 @@ def step_cost(steps: int = 20000) -> dict[str, Any]:
     link.close()
     port.close()
     samples.sort()
-    return {"emulator_step_us_median": round(samples[2], 1), "emulator_step_us_max_of_5": round(samples[-1], 1),
-            "rk4_rigid_step_us": round(rk4, 1), "telemetry_packets": link.tx_packets}
+    return {
+        "emulator_step_us_median": round(samples[2], 1),
+        "emulator_step_us_max_of_5": round(samples[-1], 1),
+        "rk4_rigid_step_us": round(rk4, 1),
+        "telemetry_packets": link.tx_packets,
+    }
 
 
 def main() -> int:

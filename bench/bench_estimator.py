@@ -3,7 +3,8 @@
 A hover run with an initial swing and small sinusoidal commands is simulated once (plant + ``px4-typical``
 sensors); its measurement stream and commands are then replayed through a fresh estimator, timing for each
 control tick everything the estimator does in that tick: ``push`` of the measurements delivered since the
-previous tick, ``estimate(t)`` and ``push_command``. Prints median and p99 in microseconds.
+previous tick, ``estimate(t)`` and ``push_command``. Prints median and p99 in microseconds, and those of the
+read-outs the live loop logs after each tick (``sigmas()`` and ``innovations()``, timed on their own).
 
 Usage: ``python bench/bench_estimator.py [--rate HZ] [--seconds S] [--sensors PRESET]``
 """
@@ -18,20 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from estimators.cable import cable_from_planar, planar_swing
-from estimators.control_state import ControlState
-from estimators.factory import make_estimator
-from estimators.flatness import FlatConstants, flat_chain, flat_constants, world_tilt
-from estimators.vehicle import Vehicle
-from sim_bridge import dynamics
-from sim_bridge.sensors import SensorSuite
-
-
-def _truth(x: list[float], k: FlatConstants) -> ControlState:
-    ay, ax, ayd, axd = planar_swing(x[12], x[13], x[14], x[15], x[16], x[17])
-    nx, ny, nxd, nyd = world_tilt(x[6], x[7], x[8], x[9], x[10], x[11])
-    return ControlState(flat_chain(k, x[0], x[3], ay, ayd, nx, nxd), flat_chain(k, x[1], x[4], ax, axd, ny, nyd),
-                        x[2], x[5], x[6], x[7], x[8], x[9], x[10], x[11], ax, ay, axd, ayd)
+from estimators.filters.factory import make_estimator
+from estimators.model.cable import cable_from_planar
+from estimators.model.control_state import ControlState
+from estimators.model.flatness import flat_constants, truth_control_state
+from estimators.model.vehicle import Vehicle
+from sim_bridge.plant import dynamics
+from sim_bridge.plant.sensors import SensorSuite
 
 
 def record(rate: float, seconds: float, preset: str, seed: int = 0) -> tuple[list, ControlState]:
@@ -56,14 +50,15 @@ def record(rate: float, seconds: float, preset: str, seed: int = 0) -> tuple[lis
         for j in range(sub):
             x = dynamics.rk4_step(x, u, p, plant_dt)
             pending.extend(sensors.sample(t + (j + 1) * plant_dt, x, u))
-    return ticks, _truth(dynamics.make_state(cable=r, cable_rate=rd), k)
+    return ticks, truth_control_state(dynamics.make_state(cable=r, cable_rate=rd), k)
 
 
-def time_ticks(ticks: list, start: ControlState, rate: float, load_sensor: bool) -> np.ndarray:
-    """Seconds spent in the estimator at each tick."""
+def time_ticks(ticks: list, start: ControlState, rate: float, load_sensor: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Seconds spent in the estimator at each tick, and in its read-outs for the log after it."""
     est = make_estimator("kf", Vehicle(), load_sensor=load_sensor, rate_hz=rate)
     est.initialize(0.0, start)
     out = np.empty(len(ticks))
+    reads = np.empty(len(ticks))
     clock = time.perf_counter
     for i, (t, ms, thrust, tau) in enumerate(ticks):
         t0 = clock()
@@ -71,8 +66,12 @@ def time_ticks(ticks: list, start: ControlState, rate: float, load_sensor: bool)
             est.push(m)
         est.estimate(t)
         est.push_command(t, thrust, tau)
-        out[i] = clock() - t0
-    return out
+        t1 = clock()
+        est.sigmas()
+        est.innovations()
+        reads[i] = clock() - t1
+        out[i] = t1 - t0
+    return out, reads
 
 
 def time_ticks_ab(ticks: list, start: ControlState, rate: float, load_sensor: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -80,8 +79,10 @@ def time_ticks_ab(ticks: list, start: ControlState, rate: float, load_sensor: bo
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
     from kf_reference import ReferenceKalmanEstimator
 
-    ests = (make_estimator("kf", Vehicle(), load_sensor=load_sensor, rate_hz=rate),
-            ReferenceKalmanEstimator(Vehicle(), load_sensor=load_sensor, rate_hz=rate))
+    ests = (
+        make_estimator("kf", Vehicle(), load_sensor=load_sensor, rate_hz=rate),
+        ReferenceKalmanEstimator(Vehicle(), load_sensor=load_sensor, rate_hz=rate),
+    )
     for est in ests:
         est.initialize(0.0, start)
     out = np.empty((2, len(ticks)))
@@ -107,23 +108,34 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     ticks, start = record(args.rate, args.seconds, args.sensors)
     n_meas = sum(len(t[1]) for t in ticks)
-    print(f"estimator cost per control tick: {len(ticks)} ticks at {args.rate:g} Hz, sensors {args.sensors}, "
-          f"{n_meas / len(ticks):.2f} measurements per tick")
+    print(
+        f"estimator cost per control tick: {len(ticks)} ticks at {args.rate:g} Hz, sensors {args.sensors}, "
+        f"{n_meas / len(ticks):.2f} measurements per tick"
+    )
     for load_sensor in (True, False):
         mode = "with cable-angle sensor" if load_sensor else "sensorless             "
         if args.reference:
             time_ticks_ab(ticks[: len(ticks) // 4], start, args.rate, load_sensor)  # warm-up
             new, ref = (a * 1e6 for a in time_ticks_ab(ticks, start, args.rate, load_sensor))
             for label, dt in (("this filter", new), ("original   ", ref)):
-                print(f"  {mode} {label}: median {np.median(dt):6.1f} us   p99 {np.percentile(dt, 99):6.1f} us   "
-                      f"mean {dt.mean():6.1f} us")
-            print(f"  {mode} speed-up: median {np.median(ref) / np.median(new):.2f}x, "
-                  f"p99 {np.percentile(ref, 99) / np.percentile(new, 99):.2f}x, mean {ref.mean() / new.mean():.2f}x")
+                print(
+                    f"  {mode} {label}: median {np.median(dt):6.1f} us   p99 {np.percentile(dt, 99):6.1f} us   "
+                    f"mean {dt.mean():6.1f} us"
+                )
+            print(
+                f"  {mode} speed-up: median {np.median(ref) / np.median(new):.2f}x, "
+                f"p99 {np.percentile(ref, 99) / np.percentile(new, 99):.2f}x, mean {ref.mean() / new.mean():.2f}x"
+            )
             continue
         time_ticks(ticks[: len(ticks) // 4], start, args.rate, load_sensor)  # warm-up (caches, allocator)
-        dt = time_ticks(ticks, start, args.rate, load_sensor) * 1e6
-        print(f"  {mode}: median {np.median(dt):6.1f} us   p99 {np.percentile(dt, 99):6.1f} us   "
-              f"max {dt.max():7.1f} us")
+        dt, reads = (a * 1e6 for a in time_ticks(ticks, start, args.rate, load_sensor))
+        print(
+            f"  {mode}: median {np.median(dt):6.1f} us   p99 {np.percentile(dt, 99):6.1f} us   max {dt.max():7.1f} us"
+        )
+        print(
+            f"  {mode}  read-outs for the log (sigmas, innovations): median {np.median(reads):6.1f} us   "
+            f"p99 {np.percentile(reads, 99):6.1f} us"
+        )
     return 0
 
 

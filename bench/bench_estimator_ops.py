@@ -25,22 +25,41 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_estimator import record
 from kf_reference import ReferenceKalmanEstimator
 
-from estimators.kf import KalmanEstimator
-from estimators.vehicle import Vehicle
+from estimators.filters.kf import KalmanEstimator
+from estimators.model.vehicle import Vehicle
+
+
+def at(e: object, block: int, t: float) -> None:
+    """Set the time of block ``block`` of filter ``e``: a named block state in this filter, ``[t, x, P]`` in the
+    frozen original."""
+    core = e._core[block]  # type: ignore[attr-defined]
+    if isinstance(core, list):
+        core[0] = t
+    else:
+        core.t = t
+
+
+def _block_time(e: object) -> float:
+    core = e._core[0]  # type: ignore[attr-defined]
+    return core[0] if isinstance(core, list) else core.t
+
 
 PREDICTIONS = (
-    ("predict horizontal block (8 states x 2 axes)", "e._core[0][0] = T0; e._advance_core(0, T0 + 0.002)"),
-    ("predict heading block (2 states)", "e._core[1][0] = T0; e._advance_core(1, T0 + 0.002)"),
-    ("predict height block (4 states)", "e._core[2][0] = T0; e._advance_core(2, T0 + 0.002)"),
+    ("predict horizontal block (8 states x 2 axes)", "at(e, 0, T0); e._advance_core(0, T0 + 0.002)"),
+    ("predict heading block (2 states)", "at(e, 1, T0); e._advance_core(1, T0 + 0.002)"),
+    ("predict height block (4 states)", "at(e, 2, T0); e._advance_core(2, T0 + 0.002)"),
     ("predict the output (22 means)", "e._t_out = TO; e._advance_output(TO + 0.004)"),
     ("push_command", "e._t_out = TO; e.push_command(TO, 10.0, (0.001, 0.002, 0.003))"),
 )
 
+
 def main() -> int:
     rate = 250.0
     ticks, start = record(rate, 20.0, "px4-typical")
-    ests = (KalmanEstimator(Vehicle(), load_sensor=True, rate_hz=rate),
-            ReferenceKalmanEstimator(Vehicle(), load_sensor=True, rate_hz=rate))
+    ests = (
+        KalmanEstimator(Vehicle(), load_sensor=True, rate_hz=rate),
+        ReferenceKalmanEstimator(Vehicle(), load_sensor=True, rate_hz=rate),
+    )
     fuse_times: list[dict[str, list[float]]] = [{}, {}]
     clock = time.perf_counter
     for k, e in enumerate(ests):
@@ -70,7 +89,7 @@ def main() -> int:
         return min(timeit.repeat(stmt, globals=names, number=n, repeat=7)) / n * 1e6
 
     for label, stmt in PREDICTIONS:
-        us = [best(stmt, {"e": e, "T0": e._core[0][0], "TO": e._t_out}) for e in ests]
+        us = [best(stmt, {"e": e, "at": at, "T0": _block_time(e), "TO": e._t_out}) for e in ests]
         print(f"{label:46s} {us[0]:9.2f} us {us[1]:6.2f} us {us[1] / us[0]:8.2f}x")
     return 0
 

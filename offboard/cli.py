@@ -18,13 +18,48 @@ from estimators.errors import UserError
 #: subcommand -> (module, one-line help). Only the chosen command's module is imported (``slung --help`` imports
 #: none), which keeps start-up fast and the flight commands free of the emulator's package.
 COMMANDS: dict[str, tuple[str, str]] = {
-    "sim": ("offboard.sim_cli", "simulate a scenario in one process (plant + estimator + controller)"),
-    "bench": ("offboard.bench_cli", "measure the speed of the plant, controller and estimator"),
+    "sim": ("offboard.harness.sim_cli", "simulate a scenario in one process (plant + estimator + controller)"),
+    "bench": ("offboard.harness.bench_cli", "measure the speed of the plant, controller and estimator"),
     "emulate": ("sim_bridge.emulator_cli", "run the MAVLink autopilot emulator (PX4 or ArduPilot flavour)"),
-    "fly": ("offboard.fly_cli", "fly a real or emulated vehicle over MAVLink"),
-    "demo": ("offboard.demo_cli", "start the emulator and fly the paper scenario end to end"),
-    "replay": ("offboard.replay_cli", "replay a .tlog through the estimator and controller"),
+    "fly": ("offboard.flight.fly_cli", "fly a real or emulated vehicle over MAVLink"),
+    "demo": ("offboard.harness.demo_cli", "start the emulator and fly the paper scenario end to end"),
+    "replay": (
+        "offboard.logs.replay_cli",
+        "replay a flight log (.tlog, .ulg, .bin) through the estimator and controller",
+    ),
+    "compare": ("offboard.harness.compare_cli", "fly every controller on the same runs and compare them side by side"),
+    "sweep": (
+        "offboard.harness.sweep_cli",
+        "Monte Carlo robustness of the controllers over parameter distributions (Dask)",
+    ),
 }
+
+
+#: what ``slung --help`` tells a user (this module's docstring is for developers)
+USER_DESCRIPTION = """\
+slung flies a quadrotor that carries a load on a cable along a trajectory and damps the load's swing
+(flatness-based sliding-mode control, PX4 or ArduPilot over MAVLink). It can also simulate a flight,
+run a bundled autopilot emulator, and replay a flight log through the same estimator and controller."""
+
+USER_EPILOG = """\
+first steps:
+  slung demo                      fly the paper's scenario against the bundled emulator (about half a minute);
+                                  open report.html in the folder it prints
+  slung sim --scenario paper      the same scenario simulated in one process
+  slung COMMAND --help            the options of one command
+
+docs: README.md and docs/usage.md in the source tree"""
+
+
+def version() -> str:
+    """The installed package's version (``slung --version``)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as _version
+
+    try:
+        return _version("slung")
+    except PackageNotFoundError:  # running from a source tree that is not installed
+        return "unknown (not installed)"
 
 
 class _Parser(argparse.ArgumentParser):
@@ -38,7 +73,13 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The parser. Every command is listed; only ``command``'s module is imported and configures its options
     (none when ``command`` is None: ``slung --help``), so that ``slung fly`` loads nothing of the emulator's
     package. A chosen command whose module is not installed is left out (argparse then names the choices)."""
-    parser = _Parser(prog="slung", description=__doc__.splitlines()[0] if __doc__ else None)
+    parser = _Parser(
+        prog="slung",
+        description=USER_DESCRIPTION,
+        epilog=USER_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"slung {version()}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True

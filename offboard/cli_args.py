@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import math
 
+from offboard.control.options import Switching, values
+
 
 def finite_float(text: str) -> float:
     """argparse type: a finite number."""
@@ -42,8 +44,40 @@ def non_negative_int(text: str) -> int:
 
 def add_controller_arguments(p: argparse.ArgumentParser) -> None:
     """Controller options shared by ``sim``, ``fly``, ``demo`` and ``replay``."""
-    p.add_argument("--switching", choices=("sign", "smooth"), default="sign",
-                   help="switching function: the paper's sign(.) or v/(|v|+eps) of eq. (92) (default: sign)")
-    p.add_argument("--epsilon", type=positive_float, default=1.0, metavar="E",
-                   help="smoothing width of eq. (92) for --switching smooth (default: 1, the paper's)")
-    p.add_argument("--vehicle", metavar="FILE", help="vehicle description (TOML); default: the paper's Table 1")
+    p.add_argument(
+        "--switching",
+        choices=values(Switching),
+        default="sign",
+        help="switching function: the paper's sign(.) or v/(|v|+eps) of eq. (92) (default: sign)",
+    )
+    p.add_argument(
+        "--epsilon",
+        type=positive_float,
+        default=1.0,
+        metavar="E",
+        help="smoothing width of eq. (92) for --switching smooth (default: 1, the paper's)",
+    )
+    p.add_argument(
+        "--vehicle",
+        metavar="FILE|NAME",
+        help="vehicle description: a TOML file, or a shipped one (paper-table1, px4-sih, ardupilot-sitl-quad); "
+        "default: the paper's Table 1",
+    )
+
+
+def add_no_figures_argument(p: argparse.ArgumentParser) -> None:
+    """``--no-figures`` of the commands that write a run's report folder (``sim``, ``fly``, ``demo``, ``replay``)."""
+    p.add_argument(
+        "--no-figures", action="store_true", help="write metrics and time series only (no PNG figures, no report.html)"
+    )
+
+
+def add_seed_argument(p: argparse.ArgumentParser) -> None:
+    """``--seed`` of the commands that simulate sensors and disturbances (``sim``, ``demo``)."""
+    p.add_argument(
+        "--seed",
+        type=non_negative_int,
+        default=0,
+        metavar="N",
+        help="seed of the sensor noise and the disturbances (default 0; the same runs in slung sim and slung demo)",
+    )

@@ -28,14 +28,34 @@ def prepare_output_dir(path: str | Path) -> Path:
     return p
 
 
+def user_file_mode() -> int:
+    """The permission bits a new file gets from ``open()`` under this process's umask (0o666 & ~umask): what
+    the tlogs get, and what the atomic writes give their files (``mkstemp`` alone would leave them 0600)."""
+    mask = None
+    try:  # Linux >= 4.7 tells the umask without changing it (os.umask would change it for every thread a moment)
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    mask = int(line.split()[1], 8)
+                    break
+    except OSError:
+        pass
+    if mask is None:
+        mask = os.umask(0o022)
+        os.umask(mask)
+    return 0o666 & ~mask
+
+
 def write_atomic(path: str | Path, writer: Callable[[Path], None]) -> Path:
-    """Call ``writer(tmp_path)`` to produce the file, then rename it onto ``path`` in one step."""
+    """Call ``writer(tmp_path)`` to produce the file, then rename it onto ``path`` in one step. The file gets the
+    permissions of any file the user creates (:func:`user_file_mode`)."""
     target = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     os.close(fd)
     tmp_path = Path(tmp)
     try:
         writer(tmp_path)
+        os.chmod(tmp_path, user_file_mode())
         with open(tmp_path, "rb+") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp_path, target)

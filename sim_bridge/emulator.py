@@ -19,14 +19,19 @@ changes and clients that do not stream still work) until the next setpoint arriv
 setpoint dropped or delayed by the injected faults still advances the clock (the handshake is the simulation's
 clock, not part of the emulated link).
 
-Disturbances (``disturbance``, e.g. ``sim_bridge.disturbances.RandomDisturbance``): the environment's external
+Disturbances (``disturbance``, e.g. ``sim_bridge.plant.disturbances.RandomDisturbance``): the environment's external
 inputs. Before every plant step at simulation time ``t`` the plant input slots 4-12 (force on the vehicle, force on
-the load, external torque; ``sim_bridge.dynamics``) are set to ``disturbance(t - origin)``, held over the step.
+the load, external torque; ``sim_bridge.plant.dynamics``) are set to ``disturbance(t - origin)``, held over the step.
 ``origin`` is 0 (``"boot"``), the first OFFBOARD / GUIDED / GUIDED_NOGPS entry (``"offboard"``), or the time a
 harness running the emulator in its process sets with :meth:`Emulator.set_disturbance_origin` (``"harness"``:
 e.g. ``slung demo``, which knows when its scenario's reference started); no disturbance before the origin is
 known. :meth:`Emulator.set_disturbance_origin` also overrides the other two. Slots 4-12 are 0 without a
 disturbance.
+
+Drag: a vehicle with ``linear_drag`` > 0 (``estimators.model.vehicle.Vehicle``; PX4 SIH's SIH_KDV, 1 N/(m/s) on its
+1 kg quadrotor) also feels ``-linear_drag * v`` (world frame, still air), added to the force on the vehicle (slots
+4-6) before every step and held over it, so that its accelerometer senses it as SIH's does; the disturbance log
+(``input_log``) keeps the disturbance alone.
 
 Ground: the vehicle rests on the ground plane z = 0 (model NWU) on landing gear tall enough for the load to hang
 free; while on the ground and the collective thrust does not exceed the total weight the state is held at rest.
@@ -42,10 +47,11 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from estimators.vehicle import Vehicle
+from estimators.model.vehicle import Vehicle
 from sim_bridge.autopilot import SETPOINT_IDS, Autopilot
-from sim_bridge.dynamics import make_state, plant_params, rk4_step
-from sim_bridge.link import Link
+from sim_bridge.emulator_api import EmulatorTruth
+from sim_bridge.plant.dynamics import make_state, plant_params, rk4_step, tension
+from sim_bridge.protocol.link import Link
 
 log = logging.getLogger(__name__)
 
@@ -114,6 +120,9 @@ class Emulator:
         autopilot.lockstep_marker = clock == "lockstep"
         self.disturbance = disturbance
         self.disturbance_origin = disturbance_origin
+        #: linear drag on the vehicle, N per m/s (module docstring), and the disturbance's force on the vehicle alone
+        self.drag = vehicle.linear_drag
+        self.dist_force = (0.0, 0.0, 0.0)
         #: simulation time (µs) the disturbance's clock starts from (None: not known yet)
         self.dist_origin_us: int | None = 0 if disturbance_origin == "boot" else None
         #: largest |disturbance| seen per channel: force on the vehicle x, y, z (N world), yaw torque (N m)
@@ -137,11 +146,40 @@ class Emulator:
             self.dist_origin_us = o
         d = self.disturbance(max(self.t_us - o, 0) * 1e-6)  # type: ignore[misc]
         u[4], u[5], u[6], u[7], u[8], u[9], u[10], u[11], u[12] = d
+        self.dist_force = (u[4], u[5], u[6])
         m = self.dist_max_abs
         for i, j in ((0, 4), (1, 5), (2, 6), (3, 12)):
             a = abs(u[j])
             if a > m[i]:
                 m[i] = a
+
+    def truth(self) -> EmulatorTruth:
+        """The plant as it is now (a typed copy; model frame, SI; ``sim_bridge.emulator_api.EmulatorTruth``)."""
+        x = tuple(self.x)
+        u = list(self.u)
+        return EmulatorTruth(
+            time_s=self.t_us * 1e-6,
+            position_m=(x[0], x[1], x[2]),
+            velocity_m_s=(x[3], x[4], x[5]),
+            euler_rad=(x[6], x[7], x[8]),
+            euler_rate_rad_s=(x[9], x[10], x[11]),
+            cable_direction=(x[12], x[13], x[14]),
+            cable_rate_1_s=(x[15], x[16], x[17]),
+            thrust_n=u[0],
+            torque_n_m=(u[1], u[2], u[3]),
+            disturbance=tuple(u[4:13]),
+            tension_n=float(tension(list(x), u, self.p)),
+            on_ground=self.on_ground,
+            state=x,
+        )
+
+    def disturbance_at(self, t_s: float) -> tuple[float, ...]:
+        """The disturbance inputs (plant slots 4-12) the plant receives at simulation time ``t_s`` (zeros without
+        one or before its clock starts)."""
+        o = self.dist_origin_us
+        if self.disturbance is None or o is None:
+            return (0.0,) * 9
+        return tuple(float(v) for v in self.disturbance(max(round(t_s * 1e6) - o, 0) * 1e-6))
 
     def stop(self) -> None:
         """Ask the loop to end (thread-safe enough: a flag read once per iteration)."""
@@ -157,13 +195,17 @@ class Emulator:
         weight = self.weight
         dist = self.disturbance
         log = self.input_log
+        drag = self.drag
         for _ in range(n):
             thrust, tx, ty, tz = ap.control(x, self.on_ground)
             u[0], u[1], u[2], u[3] = thrust, tx, ty, tz
             if dist is not None:
                 self._apply_disturbance(u)
-            if log is not None:
-                log.append((self.t_us, tuple(u[4:13])))
+            if log is not None:  # the disturbance alone (slots 4-6 also carry the drag of the last step)
+                log.append((self.t_us, (*self.dist_force, *u[7:13])))
+            if drag > 0.0:  # still air: the drag of the velocity at the step's start, held over the 1 ms step
+                fd = self.dist_force
+                u[4], u[5], u[6] = fd[0] - drag * x[3], fd[1] - drag * x[4], fd[2] - drag * x[5]
             if self.on_ground:
                 if thrust > weight * 1.0001:
                     self.on_ground = False
@@ -213,28 +255,11 @@ class Emulator:
         """Lockstep with faults: count setpoint frames at reception, even if delayed or dropped."""
         link = self.link
         link.now = self.t_us * 1e-6
-        n = 0
-        f = link.faults
-        for ep in link.endpoints:
-            while True:
-                try:
-                    data, addr = ep.sock.recvfrom(65535)
-                except (BlockingIOError, InterruptedError):
-                    break
-                except OSError:
-                    break
-                link.rx.datagrams += 1
-                n += _has_setpoint_frame(data)
-                if f.loss_in > 0.0 and link.rng.random() < f.loss_in:
-                    link.rx.dropped_in += 1
-                    continue
-                rel = link.now + f.latency + (link.rng.random() * f.jitter if f.jitter > 0.0 else 0.0)
-                rel = max(rel, link._last_in)
-                link._last_in = rel
-                link._in.append((rel, data, ep, addr))
-        for data, ep, addr in link.due_incoming():
+        received: list[bytes] = []
+        now = link.poll(received.append)
+        for data, ep, addr in (*now, *link.due_incoming()):
             self.ap.handle_datagram(data, ep, addr)
-        return n
+        return sum(_has_setpoint_frame(data) for data in received)
 
     # ---------------------------------------------------------------- loop
     def run(self, duration: float | None = None) -> None:
@@ -312,7 +337,9 @@ class Emulator:
             "nonfinite_resets": self.nonfinite_resets,
             "on_ground": self.on_ground,
             "altitude_m": self.x[2],
-            "disturbance": None if self.disturbance is None else {
+            "disturbance": None
+            if self.disturbance is None
+            else {
                 "origin": self.disturbance_origin,
                 "origin_s": None if self.dist_origin_us is None else self.dist_origin_us / 1e6,
                 "max_abs_force_xyz_n": self.dist_max_abs[:3],

@@ -23,8 +23,8 @@ import sys
 from typing import Any
 
 from estimators.errors import UserError
-from estimators.vehicle import load_vehicle
-from sim_bridge.sensors import PRESETS
+from sim_bridge.emulator_api import REFUSALS, EmulatorConfig, build_emulator
+from sim_bridge.plant.sensors import PRESETS
 
 log = logging.getLogger(__name__)
 
@@ -32,57 +32,136 @@ log = logging.getLogger(__name__)
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``emulate`` options."""
     parser.add_argument("--flavor", choices=("px4", "ardupilot"), default="px4", help="autopilot to emulate")
-    parser.add_argument("--mavlink", action="append", metavar="URL",
-                        help="udpout:HOST:PORT (send there, answer whoever talks) or udpin:HOST:PORT (listen); "
-                             "repeatable; default udpout:127.0.0.1:14540 like PX4 SITL's offboard link")
+    parser.add_argument(
+        "--mavlink",
+        action="append",
+        metavar="URL",
+        help="udpout:HOST:PORT (send there, answer whoever talks) or udpin:HOST:PORT (listen); "
+        "repeatable; default udpout:127.0.0.1:14540 like PX4 SITL's offboard link",
+    )
     clock = parser.add_mutually_exclusive_group()
-    clock.add_argument("--realtime", dest="clock", action="store_const", const="realtime",
-                       help="pace the simulation by the wall clock (default)")
-    clock.add_argument("--lockstep", dest="clock", action="store_const", const="lockstep",
-                       help="advance one control period per setpoint received (free-runs when none arrive)")
+    clock.add_argument(
+        "--realtime",
+        dest="clock",
+        action="store_const",
+        const="realtime",
+        help="pace the simulation by the wall clock (default)",
+    )
+    clock.add_argument(
+        "--lockstep",
+        dest="clock",
+        action="store_const",
+        const="lockstep",
+        help="advance one control period per setpoint received (free-runs when none arrive)",
+    )
     parser.set_defaults(clock="realtime")
-    parser.add_argument("--lockstep-period", type=float, default=0.01, metavar="S",
-                        help="simulation time advanced per setpoint in lockstep, s (default 0.01)")
-    parser.add_argument("--lockstep-grace", type=float, default=0.05, metavar="S",
-                        help="wall time without setpoints after which lockstep free-runs, s (default 0.05)")
+    parser.add_argument(
+        "--lockstep-period",
+        type=float,
+        default=0.01,
+        metavar="S",
+        help="simulation time advanced per setpoint in lockstep, s (default 0.01)",
+    )
+    parser.add_argument(
+        "--lockstep-grace",
+        type=float,
+        default=0.05,
+        metavar="S",
+        help="wall time without setpoints after which lockstep free-runs, s (default 0.05)",
+    )
     parser.add_argument("--vehicle", metavar="FILE", help="vehicle TOML (default: the paper's Table 1 vehicle)")
-    parser.add_argument("--attitude-model", choices=("rigid", "paper"), default="rigid",
-                        help="plant rotation model (default rigid body)")
+    parser.add_argument(
+        "--attitude-model",
+        choices=("rigid", "paper"),
+        default="rigid",
+        help="plant rotation model (default rigid body)",
+    )
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds of simulation time")
     parser.add_argument("--tlog", metavar="FILE", help="write every packet sent and received to a .tlog")
     parser.add_argument("--summary", metavar="FILE", help="also write the final JSON summary to FILE")
     parser.add_argument("--sysid", type=int, default=1, help="autopilot system id (default 1)")
     parser.add_argument("--load-sysid", type=int, default=2, help="system id of the load (default 2)")
-    parser.add_argument("--signing-key", metavar="HEX|@FILE",
-                        help="MAVLink 2 signing key: 64 hex digits, or @FILE holding them")
+    parser.add_argument(
+        "--signing-key", metavar="HEX|@FILE", help="MAVLink 2 signing key: 64 hex digits, or @FILE holding them"
+    )
     parser.add_argument("--loss-in", type=float, default=0.0, help="incoming packet loss probability")
     parser.add_argument("--loss-out", type=float, default=0.0, help="outgoing packet loss probability")
     parser.add_argument("--latency", type=float, default=0.0, metavar="S", help="one-way link latency, s")
     parser.add_argument("--jitter", type=float, default=0.0, metavar="S", help="extra uniform delay 0..S, s")
     parser.add_argument("--fault-seed", type=int, default=0, help="seed of the link-fault generator")
-    parser.add_argument("--noise", type=float, default=0.0,
-                        help="telemetry noise scale (0 = the plant truth, 1 = typical EKF/IMU noise)")
+    parser.add_argument(
+        "--noise",
+        type=float,
+        default=0.0,
+        help="telemetry noise scale (0 = the plant truth, 1 = typical EKF/IMU noise)",
+    )
     parser.add_argument("--noise-seed", type=int, default=1, help="seed of the telemetry noise")
-    parser.add_argument("--sensors", choices=PRESETS, default="ideal",
-                        help="sensor models of the telemetry (sim_bridge.sensors: noise, accelerometer bias, "
-                             "latency; the stream rates stay the MAVLink intervals); default ideal = the plant truth")
-    parser.add_argument("--disturbance", choices=("none", "paper"), default="none",
-                        help="external disturbances on the plant: paper = slung sim's bounded random forces on the "
-                             "vehicle (x, y, z <= 0.5 N) and yaw torque (<= 0.02 N m); default none")
-    parser.add_argument("--disturbance-start", type=float, default=25.0, metavar="S",
-                        help="onset of the disturbances, s on the disturbance clock (default 25, the paper's)")
-    parser.add_argument("--disturbance-origin", choices=("offboard", "boot", "harness"), default="offboard",
-                        help="t = 0 of the disturbance clock: the first OFFBOARD / GUIDED / GUIDED_NOGPS entry "
-                             "(default), boot (--disturbance-start is then absolute simulation time), or harness: "
-                             "set by the program running the emulator in-process (Emulator.set_disturbance_origin, "
-                             "slung demo); none until then")
-    parser.add_argument("--seed", type=int, default=0, metavar="N",
-                        help="seed of the sensor models and the disturbances (as slung sim --seed; default 0)")
-    parser.add_argument("--est-ready", type=float, default=1.5, metavar="S",
-                        help="simulation time after boot until the estimator has a position (default 1.5 s)")
+    parser.add_argument(
+        "--sensors",
+        choices=PRESETS,
+        default="ideal",
+        help="sensor models of the telemetry (sim_bridge.plant.sensors: noise, accelerometer bias, "
+        "latency; the stream rates stay the MAVLink intervals); default ideal = the plant truth",
+    )
+    parser.add_argument(
+        "--disturbance",
+        choices=("none", "paper"),
+        default="none",
+        help="external disturbances on the plant: paper = slung sim's bounded random forces on the "
+        "vehicle (x, y, z <= 0.5 N) and yaw torque (<= 0.02 N m); default none",
+    )
+    parser.add_argument(
+        "--disturbance-start",
+        type=float,
+        default=25.0,
+        metavar="S",
+        help="onset of the disturbances, s on the disturbance clock (default 25, the paper's)",
+    )
+    parser.add_argument(
+        "--disturbance-origin",
+        choices=("offboard", "boot", "harness"),
+        default="offboard",
+        help="t = 0 of the disturbance clock: the first OFFBOARD / GUIDED / GUIDED_NOGPS entry "
+        "(default), boot (--disturbance-start is then absolute simulation time), or harness: "
+        "set by the program running the emulator in-process (Emulator.set_disturbance_origin, "
+        "slung demo); none until then",
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        metavar="N",
+        help="seed of the sensor models and the disturbances (as slung sim --seed; default 0)",
+    )
+    parser.add_argument(
+        "--est-ready",
+        type=float,
+        default=1.5,
+        metavar="S",
+        help="simulation time after boot until the estimator has a position (default 1.5 s)",
+    )
+    parser.add_argument(
+        "--ekf",
+        choices=("none", "px4-sih"),
+        default="none",
+        help="the emulated autopilot's position / velocity estimate: none = the truth (default); px4-sih = "
+        "EKF-like errors that wander as PX4 SITL's SIH + EKF2 do, and a local origin offset from the ground; "
+        "the autopilot's own modes then fly on the estimate",
+    )
+
+    parser.add_argument(
+        "--refuse",
+        action="append",
+        choices=REFUSALS,
+        default=[],
+        help="emulate a failing check (repeatable): arm = a pre-arm check fails (PX4 'Preflight Fail', result 1; "
+        "ArduPilot 'PreArm', result 4); takeoff = the take-off is refused (PX4 result 1, ArduPilot result 4); "
+        "offboard = OFFBOARD / GUIDED cannot be entered (PX4 result 1, ArduPilot result 4)",
+    )
 
 
-def _signing_key(text: str | None) -> bytes | None:
+def parse_signing_key(text: str | None) -> bytes | None:
+    """The 32-byte key of ``--signing-key HEX|@FILE`` (None for None); UserError for a bad one."""
     if text is None:
         return None
     if text.startswith("@"):
@@ -100,56 +179,55 @@ def _signing_key(text: str | None) -> bytes | None:
     return key
 
 
+def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
+    """The typed configuration of parsed ``slung emulate`` options (the signing key read and checked)."""
+    return EmulatorConfig(
+        flavor=args.flavor,
+        vehicle=args.vehicle,
+        mavlink=tuple(args.mavlink or ()),
+        clock=args.clock,
+        lockstep_period=args.lockstep_period,
+        lockstep_grace=args.lockstep_grace,
+        attitude_model=args.attitude_model,
+        duration=args.duration,
+        tlog=args.tlog,
+        sysid=args.sysid,
+        load_sysid=args.load_sysid,
+        signing_key=parse_signing_key(args.signing_key),
+        loss_in=args.loss_in,
+        loss_out=args.loss_out,
+        latency=args.latency,
+        jitter=args.jitter,
+        fault_seed=args.fault_seed,
+        noise=args.noise,
+        noise_seed=args.noise_seed,
+        sensors=args.sensors,
+        disturbance=args.disturbance,
+        disturbance_start=args.disturbance_start,
+        disturbance_origin=args.disturbance_origin,
+        seed=args.seed,
+        est_ready=args.est_ready,
+        ekf=args.ekf,
+        refuse=tuple(args.refuse),
+    )
+
+
 def build(args: argparse.Namespace) -> Any:
     """Create (emulator, autopilot, link) from parsed arguments; UserError on bad input."""
-    import numpy as np
-
-    from sim_bridge.autopilot import Autopilot
-    from sim_bridge.emulator import Emulator
-    from sim_bridge.link import Link, LinkFaults
-
-    if not (0.001 <= args.lockstep_period <= 1.0):
-        raise UserError(f"--lockstep-period must be in [0.001, 1] s, got {args.lockstep_period!r}")
-    if not (0.001 <= args.lockstep_grace <= 10.0):
-        raise UserError(f"--lockstep-grace must be in [0.001, 10] s, got {args.lockstep_grace!r}")
-    if args.duration is not None and not (args.duration > 0):
-        raise UserError(f"--duration must be > 0 s, got {args.duration!r}")
-    if not (1 <= args.sysid <= 255 and 1 <= args.load_sysid <= 255 and args.sysid != args.load_sysid):
-        raise UserError("--sysid and --load-sysid must be different numbers in 1..255")
-    if not (args.noise >= 0.0 and args.noise <= 100.0):
-        raise UserError(f"--noise must be in [0, 100], got {args.noise!r}")
-    if args.noise > 0.0 and args.sensors != "ideal":
-        raise UserError("--noise (the legacy ad-hoc noise) and --sensors other than ideal exclude each other")
-    if not (0.0 <= args.disturbance_start <= 1e6):
-        raise UserError(f"--disturbance-start must be in [0, 1e6] s, got {args.disturbance_start!r}")
-    if not (0 <= args.seed < 2**63):
-        raise UserError(f"--seed must be an integer >= 0, got {args.seed!r}")
-    if not (0.0 <= args.est_ready <= 60.0):
-        raise UserError(f"--est-ready must be in [0, 60] s, got {args.est_ready!r}")
-    vehicle = load_vehicle(args.vehicle)
-    key = _signing_key(args.signing_key)
-    faults = LinkFaults(args.loss_in, args.loss_out, args.latency, args.jitter, args.fault_seed)
-    link = Link(args.mavlink or [], faults, args.tlog)
-    ap = Autopilot(args.flavor, vehicle, link, sysid=args.sysid, load_sysid=args.load_sysid, signing_key=key,
-                   noise=args.noise, rng=np.random.default_rng(args.noise_seed), est_ready_s=args.est_ready,
-                   attitude_model=args.attitude_model, sensors=args.sensors,
-                   sensor_rng=np.random.default_rng(args.seed))
-    disturbance = None
-    if args.disturbance == "paper":
-        from sim_bridge.disturbances import DisturbanceSpec, RandomDisturbance
-
-        disturbance = RandomDisturbance(DisturbanceSpec(start=args.disturbance_start), args.seed)
-    emu = Emulator(ap, link, vehicle, clock=args.clock, period=args.lockstep_period, grace=args.lockstep_grace,
-                   attitude_model=args.attitude_model, disturbance=disturbance,
-                   disturbance_origin=args.disturbance_origin)
-    return emu, ap, link
+    cfg = config_from_args(args)
+    cfg.validate()  # before any socket is opened
+    return build_emulator(cfg)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the emulator until --duration, SIGINT or SIGTERM; print the JSON summary."""
     emu, ap, link = build(args)
-    print(f"slung emulate: {args.flavor} ({args.clock}) on "
-          + ", ".join(f"{ep.url} (local port {ep.local_port})" for ep in link.endpoints), file=sys.stderr, flush=True)
+    print(
+        f"slung emulate: {args.flavor} ({args.clock}) on "
+        + ", ".join(f"{ep.url} (local port {ep.local_port})" for ep in link.endpoints),
+        file=sys.stderr,
+        flush=True,
+    )
 
     def _stop(signum: int, frame: Any) -> None:
         emu.stop()

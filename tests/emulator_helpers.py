@@ -8,6 +8,7 @@ import math
 import os
 import signal
 import socket
+import struct
 import subprocess
 import sys
 import time
@@ -17,8 +18,8 @@ from typing import Any
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
-from estimators.frames import euler_to_quaternion
-from estimators.vehicle import Vehicle
+from estimators.model.frames import euler_to_quaternion
+from estimators.model.vehicle import Vehicle
 
 ROOT = Path(__file__).resolve().parents[1]
 PX4_OFFBOARD = (1, 6, 0)  # DO_SET_MODE params for PX4 OFFBOARD
@@ -36,19 +37,37 @@ def free_port() -> int:
     return port
 
 
+def emulator_process(
+    port: int, *args: str, stdout: Any = subprocess.PIPE, stderr: Any = subprocess.PIPE
+) -> subprocess.Popen:
+    """``slung emulate`` (``python -m sim_bridge.emulator_cli``) as its own process, sending MAVLink to
+    ``udpout:127.0.0.1:<port>``, with the further ``args``; text pipes by default. The one way the tests and the
+    benchmarks start it as a process (real time needs its own core, not a thread of the caller)."""
+    cmd = [sys.executable, "-m", "sim_bridge.emulator_cli", "--mavlink", f"udpout:127.0.0.1:{port}", *args]
+    return subprocess.Popen(cmd, cwd=ROOT, stdout=stdout, stderr=stderr, text=True)
+
+
 class Emu:
     """``python -m sim_bridge.emulator_cli`` sending to a pymavlink client listening on a free port."""
 
-    def __init__(self, *args: str, client_sysid: int = 255, client_compid: int = 190,
-                 signing_key: bytes | None = None, sign_outgoing: bool = True) -> None:
+    def __init__(
+        self,
+        *args: str,
+        client_sysid: int = 255,
+        client_compid: int = 190,
+        signing_key: bytes | None = None,
+        sign_outgoing: bool = True,
+    ) -> None:
         self.port = free_port()
-        self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=client_sysid,
-                                               source_component=client_compid, dialect="ardupilotmega")
+        self.conn = mavutil.mavlink_connection(
+            f"udpin:127.0.0.1:{self.port}",
+            source_system=client_sysid,
+            source_component=client_compid,
+            dialect="ardupilotmega",
+        )
         if signing_key is not None:
             self.conn.setup_signing(signing_key, sign_outgoing=sign_outgoing)
-        cmd = [sys.executable, "-m", "sim_bridge.emulator_cli", "--mavlink", f"udpout:127.0.0.1:{self.port}",
-               *args]
-        self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self.proc = emulator_process(self.port, *args)
         self.summary: dict[str, Any] | None = None
         self.texts: list[str] = []  # every STATUSTEXT seen by recv()
 
@@ -158,8 +177,9 @@ class InProcessEmu(Emu):
         from sim_bridge import emulator_cli
 
         self.port = free_port()
-        self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{self.port}", source_system=255,
-                                               source_component=190, dialect="ardupilotmega")
+        self.conn = mavutil.mavlink_connection(
+            f"udpin:127.0.0.1:{self.port}", source_system=255, source_component=190, dialect="ardupilotmega"
+        )
         parser = argparse.ArgumentParser()
         emulator_cli.configure(parser)
         self.args = parser.parse_args(["--mavlink", f"udpout:127.0.0.1:{self.port}", *args])
@@ -194,18 +214,52 @@ class InProcessEmu(Emu):
             self.link.close()
 
 
-def attitude_target(mav: Any, roll: float, pitch: float, yaw: float, thrust: float, t_ms: int = 0,
-                    target: int = 1) -> None:
+def attitude_target(
+    mav: Any, roll: float, pitch: float, yaw: float, thrust: float, t_ms: int = 0, target: int = 1
+) -> None:
     """SET_ATTITUDE_TARGET, type_mask 7 (attitude + thrust), Euler angles in rad (NED/FRD)."""
     q = euler_to_quaternion(roll, pitch, yaw)
     mav.set_attitude_target_send(t_ms, target, 1, 7, list(q), 0.0, 0.0, 0.0, thrust)
 
 
+def offboard_then_silence(e: Emu, action: int, *params: tuple[bytes, float]) -> int:
+    """Set PX4's offboard-loss action ``COM_OBL_RC_ACT`` = ``action`` and a 0.5 s loss timeout (``params``: more
+    REAL32 parameters, set before the timeout), arm, switch to OFFBOARD and climb 1 s in lockstep (thrust 0.6), then
+    send nothing more: the emulator free-runs into its failsafe. Returns the last step's end marker (SYSTEM_TIME
+    ``time_boot_ms``, ms)."""
+    e.wait_heartbeat()
+    e.wait_ready()
+    e.mav.param_set_send(1, 1, b"COM_OBL_RC_ACT", struct.unpack("<f", struct.pack("<i", action))[0], 6)
+    for name, value in params:
+        e.mav.param_set_send(1, 1, name, value, 9)
+    e.mav.param_set_send(1, 1, b"COM_OF_LOSS_T", 0.5, 9)
+    assert e.recv("PARAM_VALUE", 2.0, cond=lambda m: m.param_id == "COM_OF_LOSS_T") is not None
+    for _ in range(5):
+        attitude_target(e.mav, 0, 0, 0, 0.0)
+    assert e.command(MAV_CMD_ARM, 1, 0).result == 0
+    attitude_target(e.mav, 0, 0, 0, 0.6)
+    assert e.command(MAV_CMD_DO_SET_MODE, 1, 6, 0).result == 0
+    t_stop = 0
+    for _ in range(100):  # 1 s of lockstep climb
+        attitude_target(e.mav, 0, 0, 0, 0.6)
+        marker = e.recv("SYSTEM_TIME", 2.0)
+        assert marker is not None
+        t_stop = marker.time_boot_ms
+    return t_stop
+
+
 class HoldController:
     """PD hold of a NED position with attitude + normalized thrust output (small-angle, test client only)."""
 
-    def __init__(self, vehicle: Vehicle, target_ned: tuple[float, float, float], kp_xy: float = 1.0,
-                 kd_xy: float = 1.8, kp_z: float = 4.0, kd_z: float = 4.0) -> None:
+    def __init__(
+        self,
+        vehicle: Vehicle,
+        target_ned: tuple[float, float, float],
+        kp_xy: float = 1.0,
+        kd_xy: float = 1.8,
+        kp_z: float = 4.0,
+        kd_z: float = 4.0,
+    ) -> None:
         self.hover = vehicle.hover_thrust_normalized
         self.g = vehicle.gravity
         self.target = target_ned
@@ -225,8 +279,14 @@ class HoldController:
         return roll, pitch, max(0.0, min(1.0, thrust))
 
 
-def fly_lockstep_hold(emu: Emu, seconds: float, vehicle: Vehicle, altitude: float = 2.0,
-                      period: float = 0.01, collect: tuple[str, ...] = ()) -> dict[str, Any]:
+def fly_lockstep_hold(
+    emu: Emu,
+    seconds: float,
+    vehicle: Vehicle,
+    altitude: float = 2.0,
+    period: float = 0.01,
+    collect: tuple[str, ...] = (),
+) -> dict[str, Any]:
     """Arm, enter offboard and hold ``altitude`` for ``seconds`` of simulation time in lockstep.
 
     Returns wall time of the lockstep part, final position (NED) and the number of handshakes; with ``collect``
@@ -291,5 +351,13 @@ def fly_lockstep_hold(emu: Emu, seconds: float, vehicle: Vehicle, altitude: floa
             if sim_ms - start_ms >= seconds * 1000:
                 break
     wall = time.monotonic() - t0
-    return {"wall_s": wall, "sim_s": (sim_ms - (start_ms or 0)) / 1000.0, "pos": pos, "handshakes": steps,
-            "max_alt_err_after_10s": max_err, "trace": trace, "messages": messages, "start_ms": start_ms}
+    return {
+        "wall_s": wall,
+        "sim_s": (sim_ms - (start_ms or 0)) / 1000.0,
+        "pos": pos,
+        "handshakes": steps,
+        "max_alt_err_after_10s": max_err,
+        "trace": trace,
+        "messages": messages,
+        "start_ms": start_ms,
+    }

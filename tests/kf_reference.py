@@ -1,5 +1,5 @@
-"""Frozen reference: the Kalman filter of ``estimators.kf`` / ``estimators.linear_block`` as first written (commit
-4a43cdc), before its hot paths were optimized; docstrings stripped, code otherwise unchanged.
+"""Frozen reference: the Kalman filter of ``estimators.filters.kf`` / ``estimators.filters.linear_block`` as first
+written (commit 4a43cdc), before its hot paths were optimized; docstrings stripped, code otherwise unchanged.
 
 ``tests/test_kf_regression.py`` runs it side by side with the optimized filter on the same measurement stream
 and requires the same estimates, covariances, gating decisions and counters. Do not "fix" or speed up this file:
@@ -19,13 +19,13 @@ from filterpy.common import van_loan_discretization
 from scipy.linalg import expm
 from scipy.stats import chi2
 
-from estimators.cable import cable_from_planar
-from estimators.control_state import ControlState
-from estimators.flatness import flat_chain, flat_constants, planar_state, world_tilt
-from estimators.frames import wrap_angle
-from estimators.kf import Tuning
-from estimators.measurements import Attitude, Imu, LoadAngle, Measurement, PositionVelocity
-from estimators.vehicle import Vehicle
+from estimators.filters.kf import Tuning
+from estimators.model.cable import cable_from_planar
+from estimators.model.control_state import ControlState
+from estimators.model.flatness import flat_chain, flat_constants, planar_state, world_tilt
+from estimators.model.frames import wrap_angle
+from estimators.model.measurements import Attitude, Imu, LoadAngle, Measurement, PositionVelocity
+from estimators.model.vehicle import Vehicle
 
 
 class Discrete(NamedTuple):

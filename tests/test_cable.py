@@ -1,4 +1,4 @@
-"""estimators/cable.py: spherical <-> r <-> planar round trips, rates against finite differences, and the
+"""estimators/model/cable.py: spherical <-> r <-> planar round trips, rates against finite differences, and the
 rest position alpha = 0 (where beta is undefined) handled without NaN."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from estimators.cable import cable_from_planar, cable_from_spherical, planar_swing, swing_angles
+from estimators.model.cable import cable_from_planar, cable_from_spherical, planar_swing, swing_angles
 
 
 def _tangent_ok(r: tuple[float, ...], rd: tuple[float, ...]) -> None:
@@ -68,8 +68,12 @@ def test_rates_match_finite_differences() -> None:
     h = 1e-5
 
     def path(t: float) -> tuple[float, float, float, float]:
-        return 0.6 + 0.3 * math.sin(1.3 * t), 0.4 + 2.0 * t + 0.2 * math.cos(t), 0.39 * math.cos(1.3 * t), \
-            2.0 - 0.2 * math.sin(t)
+        return (
+            0.6 + 0.3 * math.sin(1.3 * t),
+            0.4 + 2.0 * t + 0.2 * math.cos(t),
+            0.39 * math.cos(1.3 * t),
+            2.0 - 0.2 * math.sin(t),
+        )
 
     for t in np.linspace(0.0, 3.0, 13):
         a, b, ad, bd = path(t)

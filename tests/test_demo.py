@@ -32,17 +32,27 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
 from estimators.errors import UserError
-from estimators.vehicle import Vehicle
-from offboard import metrics as metrics_mod
-from offboard import sim as sim_mod
-from offboard import smc
-from offboard.demo_cli import configure, run_demo
-from offboard.scenarios import PAPER_DISTURBANCE_START_S, make_scenario
+from estimators.model.vehicle import Vehicle
+from offboard.control import smc
+from offboard.control.scenarios import PAPER_DISTURBANCE_START_S, make_scenario
+from offboard.harness import sim as sim_mod
+from offboard.harness.demo_cli import configure, run_demo
+from offboard.report import metrics as metrics_mod
 
 DURATION = 50.0
 SEED = 0
 SIGNALS = ("e_Fx", "e_Fy", "e_z", "e_psi", "alpha")
 RATIO = 1.3
+
+
+def _ratio(flavor: str, signal: str) -> float:
+    """demo / sim bound per signal: 1.3, and 1.7 for every ArduPilot signal. The emulator's ArduPilot flavour now
+    shapes the attitude request as ArduPilot does (ATC_INPUT_TC, square-root controller) and takes the rates as
+    feed-forward, which ``slung sim``'s mixer does not model: measured 1.05-1.48x over runs (e_Fx 0.024-0.026 m,
+    e_psi 0.069-0.083 rad, all but e_psi within the paper's Table 2). The 1.3x held before only because the
+    emulator's inner loops were the ones the mapping inverts. An ArduPilot inner-loop model in ``slung sim`` would
+    restore the like-with-like comparison (open)."""
+    return 1.7 if flavor == "ardupilot" else RATIO
 
 
 def demo_args(tmp_path, *extra: str) -> argparse.Namespace:
@@ -51,17 +61,25 @@ def demo_args(tmp_path, *extra: str) -> argparse.Namespace:
     return p.parse_args(["--no-figures", "--out", str(tmp_path / "demo"), *extra])
 
 
-@pytest.fixture(scope="module")
-def sim_run() -> tuple[dict, sim_mod.SimLog]:
+def _sim(actuators: str) -> tuple[dict, sim_mod.SimLog]:
     """slung sim with the demo's sensors (px4-fast = px4-typical at the loop's request rates), filter, rate,
     plant model, actuators (the emulator's mixer), disturbances and seed."""
     v = Vehicle()
     sc = make_scenario("paper", duration=DURATION, seed=SEED)
     params = smc.ControllerParams.for_vehicle(v, switching="sign", epsilon=1.0)
-    cfg = sim_mod.SimConfig(control_rate=250.0, attitude_model="rigid", sensors="px4-fast", estimator="kf",
-                            seed=SEED, actuators="mixer")
+    cfg = sim_mod.SimConfig(
+        control_rate=250.0, attitude_model="rigid", sensors="px4-fast", estimator="kf", seed=SEED, actuators=actuators
+    )
     log = sim_mod.run(sc, v, params, cfg)
     return metrics_mod.compute(log), log
+
+
+@pytest.fixture(scope="module")
+def sim_runs() -> dict[str, tuple[dict, sim_mod.SimLog]]:
+    """slung sim per actuator model, run once: ``mixer`` (roll / pitch priority) beside the attitude outputs, and
+    ``px4`` (PX4's allocator and its desaturation) beside ``--output actuator``, which meets that allocator on the
+    emulator's PX4 flavour: like is compared with like."""
+    return {"mixer": _sim("mixer"), "px4": _sim("px4")}
 
 
 def wire_setpoints(tlog_path) -> list:
@@ -81,9 +99,9 @@ def read_csv(path) -> dict[str, np.ndarray]:
 
 
 @pytest.mark.parametrize(("flavor", "output"), [("px4", "attitude"), ("px4", "actuator"), ("ardupilot", "attitude")])
-def test_demo_flies_the_paper_scenario_like_sim(tmp_path, sim_run, flavor: str, output: str) -> None:
-    sim_m, sim_log = sim_run
-    args = demo_args(tmp_path, "--flavor", flavor, "--output", output)
+def test_demo_flies_the_paper_scenario_like_sim(tmp_path, sim_runs, flavor: str, output: str) -> None:
+    sim_m, sim_log = sim_runs["px4" if output == "actuator" else "mixer"]
+    args = demo_args(tmp_path, "--flavor", flavor, "--output", output, "--law", "torque")  # sim runs the torque law
     assert (args.sensors, args.seed, args.disturbance, args.rate) == ("px4-typical", SEED, "paper", 250.0)
     m, folder, emu = run_demo(args, quiet=True)
     assert m["flight"]["ended_by"] == "completed" and m["completed"] and m["all_finite"]
@@ -91,7 +109,7 @@ def test_demo_flies_the_paper_scenario_like_sim(tmp_path, sim_run, flavor: str, 
     assert m["duration_s"] == pytest.approx(DURATION, abs=0.05)
     ratios = {k: m["rms"][k] / sim_m["rms"][k] for k in SIGNALS}
     for k in SIGNALS:
-        assert m["rms"][k] <= RATIO * sim_m["rms"][k], (k, m["rms"][k], sim_m["rms"][k], ratios)
+        assert m["rms"][k] <= _ratio(flavor, k) * sim_m["rms"][k], (k, m["rms"][k], sim_m["rms"][k], ratios)
     # the emulator really was the paper scenario: noisy sensors, disturbance clock at the reference start
     assert emu["sensors"] == "px4-typical"
     dist = emu["disturbance"]
@@ -108,12 +126,13 @@ def test_demo_flies_the_paper_scenario_like_sim(tmp_path, sim_run, flavor: str, 
         assert np.all(ts[c][t < PAPER_DISTURBANCE_START_S - 1e-9] == 0.0) and np.max(np.abs(ts[c])) > 0.0
     # columns agree with each other: the heading error is the logged heading minus its reference, the filter's
     # heading error is small, the logged heading rate is the plant's (bounded), the tension near the load weight
-    np.testing.assert_allclose(ts["e_psi"], np.remainder(ts["psi"] - ts["psi_ref"] + np.pi, 2 * np.pi) - np.pi,
-                               atol=1e-7)
+    np.testing.assert_allclose(
+        ts["e_psi"], np.remainder(ts["psi"] - ts["psi_ref"] + np.pi, 2 * np.pi) - np.pi, atol=1e-7
+    )
     assert np.max(np.abs(ts["est_psi"])) < 0.05 and np.max(np.abs(ts["psi_rate"])) < 1.5
     print(f"{flavor}/{output}: demo / sim RMS ratios", {k: round(v, 3) for k, v in ratios.items()})
     # the vehicle was left holding (PX4 AUTO.LOITER, ArduPilot LOITER), armed and airborne
-    assert emu["mode"] == ("AUTO.LOITER" if flavor == "px4" else "LOITER") and emu["armed"]
+    assert emu["mode"] == ("AUTO.LOITER" if flavor == "px4" else "BRAKE") and emu["armed"]
     assert emu["counters"]["setpoints_rejected"] == 0
     # the filter was built as recorded
     assert m["config"]["load_sensor"] is True and m["config"]["delay_s"] == pytest.approx(0.012)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim_bridge.disturbances import DisturbanceSpec, RandomDisturbance
+from sim_bridge.plant.disturbances import DisturbanceSpec, RandomDisturbance
 
 
 def test_bounded_zero_before_onset_and_grid_matches_calls() -> None:

@@ -1,4 +1,4 @@
-"""Physics and numerics of the plant (sim_bridge/dynamics.py) against first principles and the paper.
+"""Physics and numerics of the plant (sim_bridge/plant/dynamics.py) against first principles and the paper.
 
 Figures quoted in comments were measured on this model (Table 1 vehicle) when the tests were written.
 """
@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from estimators.cable import cable_from_spherical, swing_angles
-from estimators.vehicle import Vehicle
-from offboard.linear_model import STATE_NAMES, linear_model
-from sim_bridge.angle_form import (
+from estimators.model.cable import cable_from_planar, cable_from_spherical, swing_angles
+from estimators.model.vehicle import Vehicle
+from offboard.control.linear_model import STATE_NAMES, linear_model
+from sim_bridge.plant.angle_form import (
     angle_accelerations_from_sphere,
     angle_derivative,
     angle_to_sphere_state,
     sphere_to_angle_state,
 )
-from sim_bridge.dynamics import (
+from sim_bridge.plant.dynamics import (
     derivative,
     energy,
     hover_input,
@@ -32,8 +32,7 @@ from sim_bridge.dynamics import (
     tension,
     thrust_direction,
 )
-from sim_bridge.linearize import (
-    REDUCED_STATE_NAMES,
+from sim_bridge.plant.linearize import (
     full_to_reduced,
     hover_point,
     jacobian,
@@ -119,10 +118,18 @@ def test_sphere_form_matches_printed_angle_form_along_a_trajectory() -> None:
     xa0 = [0.0, 0.0, 1.0, 0.2, -0.1, 0.0, 0.05, -0.04, 0.1, 0.0, 0.0, 0.0, 0.5, 0.3, 1.0, 6.0]
     x0 = angle_to_sphere_state(xa0)
     ts = np.linspace(0.0, 4.0, 81)
-    sa = solve_ivp(lambda t, y: angle_derivative(t, y, _paper_input(t, p), p), (0, 4), xa0, method="DOP853",
-                   rtol=1e-11, atol=1e-12, t_eval=ts)
-    ss = solve_ivp(lambda t, y: derivative(t, y, _paper_input(t, p), p), (0, 4), x0, method="DOP853",
-                   rtol=1e-11, atol=1e-12, t_eval=ts)
+    sa, ss = (
+        solve_ivp(
+            lambda t, y, f=f: f(t, y, _paper_input(t, p), p),
+            (0, 4),
+            y0,
+            method="DOP853",
+            rtol=1e-11,
+            atol=1e-12,
+            t_eval=ts,
+        )
+        for f, y0 in ((angle_derivative, xa0), (derivative, x0))
+    )
     assert sa.success and ss.success
     alphas = sa.y[12]
     assert alphas.min() > 0.15 and alphas.max() > 0.6  # away from the singularity, and a real swing
@@ -172,8 +179,23 @@ def test_printed_r_with_plus_cos_alpha_is_wrong() -> None:
 
 
 # 3. Jacobian == corrected tangent linearization ----------------------------------------------------------
-def test_state_orders_agree() -> None:
-    assert REDUCED_STATE_NAMES == STATE_NAMES
+def test_state_names_describe_the_reduced_coordinates() -> None:
+    """The linear model's state names (one list, ``estimators.model.control_state``) name what ``full_to_reduced`` puts
+    in each place, for the rigid body and the swing angles alike."""
+    r, rd = cable_from_planar(0.05, -0.02, 0.3, -0.1)
+    z = full_to_reduced(make_state((1.0, 2.0, 3.0), (4.0, 5.0, 6.0), (0.1, 0.2, 0.3), (0.4, 0.5, 0.6), r, rd))
+    named = dict(zip(STATE_NAMES, z, strict=True))
+    assert [named[n] for n in ("x", "y", "z", "vx", "vy", "vz")] == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
+    assert [named[n] for n in ("phi", "theta", "psi", "phi_rate", "theta_rate", "psi_rate")] == [
+        0.1,
+        0.2,
+        0.3,
+        0.4,
+        0.5,
+        0.6,
+    ]
+    swing = [named[n] for n in ("alpha_y", "alpha_x", "alpha_y_rate", "alpha_x_rate")]
+    assert swing == pytest.approx([0.05, -0.02, 0.3, -0.1], abs=1e-12)
 
 
 def test_reduced_coordinates_round_trip_and_derivative() -> None:
@@ -188,8 +210,10 @@ def test_reduced_coordinates_round_trip_and_derivative() -> None:
         v = [rng.uniform(3.0, 10.0), *rng.normal(scale=0.05, size=3)]
         xd = np.array(derivative(0.0, x, make_input(v[0], v[1:]), p))
         eps = 1e-6
-        fd = (np.array(full_to_reduced(list(np.array(x) + eps * xd)))
-              - np.array(full_to_reduced(list(np.array(x) - eps * xd)))) / (2 * eps)
+        fd = (
+            np.array(full_to_reduced(list(np.array(x) + eps * xd)))
+            - np.array(full_to_reduced(list(np.array(x) - eps * xd)))
+        ) / (2 * eps)
         np.testing.assert_allclose(reduced_derivative(z, v, p), fd, atol=1e-7)
 
 
@@ -241,8 +265,14 @@ def test_tension_matches_load_acceleration() -> None:
     for _ in range(100):
         r = rng.normal(size=3)
         r /= np.linalg.norm(r)
-        x = make_state(rng.normal(size=3), rng.normal(size=3), rng.normal(scale=0.3, size=3),
-                       rng.normal(size=3), r, rng.normal(scale=2.0, size=3))
+        x = make_state(
+            rng.normal(size=3),
+            rng.normal(size=3),
+            rng.normal(scale=0.3, size=3),
+            rng.normal(size=3),
+            r,
+            rng.normal(scale=2.0, size=3),
+        )
         fq, fl = rng.normal(size=3), rng.normal(scale=0.3, size=3)
         u = make_input(rng.uniform(0, 15), rng.normal(scale=0.1, size=3), fq, fl)
         d = np.array(derivative(0.0, x, u, p))
@@ -256,8 +286,9 @@ def test_tension_matches_load_acceleration() -> None:
         # without external load force: |T| = m |a_load + g e3|
         u0 = make_input(u[0], u[1:4], fq)
         d0 = np.array(derivative(0.0, x, u0, p))
-        assert abs(tension(x, u0, p)) == pytest.approx(p.m * np.linalg.norm(d0[3:6] + p.l * d0[15:18] + g3),
-                                                        rel=1e-10, abs=1e-12)
+        assert abs(tension(x, u0, p)) == pytest.approx(
+            p.m * np.linalg.norm(d0[3:6] + p.l * d0[15:18] + g3), rel=1e-10, abs=1e-12
+        )
 
 
 def test_tension_is_signed_and_detects_a_slack_cable() -> None:
@@ -329,9 +360,13 @@ def test_rigid_body_conserves_world_angular_momentum() -> None:
     def world_momentum(s: list[float]) -> np.ndarray:
         f, t, ps = s[6:9]
         df, dt, dp = s[9:12]
-        w = np.array([df - math.sin(t) * dp,
-                      math.cos(f) * dt + math.sin(f) * math.cos(t) * dp,
-                      -math.sin(f) * dt + math.cos(f) * math.cos(t) * dp])
+        w = np.array(
+            [
+                df - math.sin(t) * dp,
+                math.cos(f) * dt + math.sin(f) * math.cos(t) * dp,
+                -math.sin(f) * dt + math.cos(f) * math.cos(t) * dp,
+            ]
+        )
         n = np.array(thrust_direction(f, t, ps))
         cp, sp = math.cos(ps), math.sin(ps)
         ct, st = math.cos(t), math.sin(t)

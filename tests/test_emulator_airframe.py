@@ -6,10 +6,16 @@ import math
 
 import pytest
 
-from estimators.frames import euler_to_quaternion, quaternion_to_euler
-from estimators.vehicle import Vehicle
-from sim_bridge.airframe import AttitudeController, Mixer, PositionController, angle_boost, quat_from_thrust_dir_yaw
-from sim_bridge.dynamics import make_input, make_state, plant_params, rk4_step
+from estimators.model.frames import euler_to_quaternion, quaternion_to_euler
+from estimators.model.vehicle import Vehicle
+from sim_bridge.inner.airframe import (
+    AttitudeController,
+    Mixer,
+    PositionController,
+    angle_boost,
+    quat_from_thrust_dir_yaw,
+)
+from sim_bridge.plant.dynamics import make_input, make_state, plant_params, rk4_step
 
 V = Vehicle()
 
@@ -21,8 +27,9 @@ def _settle(m: Mixer, n: int = 2000) -> tuple[float, float, float, float]:
     return out
 
 
-@pytest.mark.parametrize("wrench", [(6.86, 0.1, 0.0, 0.0), (6.86, 0.0, -0.2, 0.0), (8.0, 0.05, 0.05, 0.02),
-                                    (5.0, -0.1, 0.08, -0.03)])
+@pytest.mark.parametrize(
+    "wrench", [(6.86, 0.1, 0.0, 0.0), (6.86, 0.0, -0.2, 0.0), (8.0, 0.05, 0.05, 0.02), (5.0, -0.1, 0.08, -0.03)]
+)
 def test_mixer_reproduces_feasible_wrench(wrench: tuple[float, float, float, float]) -> None:
     m = Mixer(V, 0.001)
     m.allocate(*wrench)
@@ -61,9 +68,11 @@ def test_motor_lag_is_first_order_with_the_vehicle_time_constant() -> None:
 
 def test_quaternion_from_thrust_direction_and_yaw() -> None:
     for phi, theta, psi in [(0.0, 0.0, 0.3), (0.2, -0.1, 1.0), (-0.3, 0.25, -2.0)]:
-        n = (math.sin(phi) * math.sin(psi) + math.cos(phi) * math.cos(psi) * math.sin(theta),
-             math.cos(phi) * math.sin(psi) * math.sin(theta) - math.cos(psi) * math.sin(phi),
-             math.cos(phi) * math.cos(theta))
+        n = (
+            math.sin(phi) * math.sin(psi) + math.cos(phi) * math.cos(psi) * math.sin(theta),
+            math.cos(phi) * math.sin(psi) * math.sin(theta) - math.cos(psi) * math.sin(phi),
+            math.cos(phi) * math.cos(theta),
+        )
         q = quat_from_thrust_dir_yaw(*n, psi)
         # same thrust direction: rotate e3 by q
         w, x, y, z = q
@@ -83,7 +92,7 @@ def _fly_attitude(target: tuple[float, float, float], seconds: float) -> list[tu
     qd = euler_to_quaternion(*target)
     out = []
     rate_sp = (0.0, 0.0, 0.0)
-    from sim_bridge.airframe import body_rates
+    from sim_bridge.inner.airframe import body_rates
 
     for k in range(int(seconds / dt)):
         if k % 4 == 0:
@@ -126,7 +135,7 @@ def test_angle_boost_divides_by_cos_tilt_with_a_floor() -> None:
 
 
 def test_thrust_semantics_px4_and_ardupilot() -> None:
-    from sim_bridge.airframe import ardupilot_climb_rate, ardupilot_throttle_newtons, px4_thrust_newtons
+    from sim_bridge.inner.airframe import ardupilot_climb_rate, ardupilot_throttle_newtons, px4_thrust_newtons
 
     assert px4_thrust_newtons(V.hover_thrust_normalized, V.thrust_max) == pytest.approx(V.hover_thrust)
     assert px4_thrust_newtons(1.7, V.thrust_max) == V.thrust_max and px4_thrust_newtons(-0.2, V.thrust_max) == 0.0

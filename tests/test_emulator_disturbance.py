@@ -1,6 +1,6 @@
-"""``slung emulate --disturbance paper``: slung sim's bounded random disturbances (``sim_bridge.disturbances``) act on
-the emulator's plant, on the documented clock (origin: the first offboard entry, boot, or a harness-set time), and
-move the vehicle. The plant inputs are read from the emulator running in this process; the flights are flown over
+"""``slung emulate --disturbance paper``: slung sim's bounded random disturbances (``sim_bridge.plant.disturbances``)
+act on the emulator's plant, on the documented clock (origin: the first offboard entry, boot, or a harness-set time),
+and move the vehicle. The plant inputs are read from the emulator running in this process; the flights are flown over
 real UDP on 127.0.0.1 in lockstep."""
 
 from __future__ import annotations
@@ -11,17 +11,28 @@ from typing import Any
 import pytest
 from emulator_helpers import Emu, InProcessEmu, fly_lockstep_hold
 
-from estimators.vehicle import Vehicle
+from estimators.model.vehicle import Vehicle
 from sim_bridge import emulator_cli
-from sim_bridge.disturbances import DisturbanceSpec, RandomDisturbance
+from sim_bridge.plant.disturbances import DisturbanceSpec, RandomDisturbance
 
 V = Vehicle()
 SEED = 5
 
 
 def test_plant_inputs_are_random_disturbance_from_the_offboard_entry() -> None:
-    with InProcessEmu("--lockstep", "--lockstep-grace", "1", "--est-ready", "0.2", "--disturbance", "paper",
-                      "--disturbance-start", "1.0", "--seed", str(SEED)) as e:
+    with InProcessEmu(
+        "--lockstep",
+        "--lockstep-grace",
+        "1",
+        "--est-ready",
+        "0.2",
+        "--disturbance",
+        "paper",
+        "--disturbance-start",
+        "1.0",
+        "--seed",
+        str(SEED),
+    ) as e:
         e.emu.input_log = []
         fly_lockstep_hold(e, 4.0, V)
         summary = e.stop()
@@ -86,8 +97,9 @@ def test_default_is_the_paper_spec_and_the_boot_and_harness_origins() -> None:
         link.close()
     # boot origin: --disturbance-start is absolute simulation time; a harness may set the origin itself
     for origin, setter in (("boot", None), ("harness", 0.3), ("offboard", 0.3)):
-        emu, _, link = _build("--disturbance", "paper", "--disturbance-start", "0.5", "--disturbance-origin", origin,
-                              "--seed", "9")
+        emu, _, link = _build(
+            "--disturbance", "paper", "--disturbance-start", "0.5", "--disturbance-origin", origin, "--seed", "9"
+        )
         try:
             if setter is not None:
                 emu.set_disturbance_origin(setter)

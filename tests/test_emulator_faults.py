@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 import numpy as np
@@ -13,7 +14,7 @@ from emulator_helpers import MAV_CMD_ARM, Emu, fly_lockstep_hold
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as apm
 
-from estimators.vehicle import Vehicle
+from estimators.model.vehicle import Vehicle
 
 V = Vehicle()
 KEY = bytes(range(32))
@@ -81,17 +82,37 @@ def _still_flying(e: Emu) -> None:
     assert hb.custom_mode == 50593792 and hb.base_mode & 128  # still armed, still in Hold
 
 
-def test_fuzz_classified_datagrams_counted_exactly_while_flying() -> None:
-    rng = np.random.default_rng(20261122)
+def _fuzz_while_flying(packets: Iterable[bytes]) -> tuple[dict[str, Any], int]:
+    """Fly the emulator to Hold, send it every datagram of ``packets`` (a barrier every 1500) and check that it still
+    flies; its summary and the number of pings the barriers sent."""
     with Emu("--est-ready", "0.2") as e:
         _fly_to_hold(e)
         s = Sender(e)
-        pool = _valid_pool(_packer())
-        expect = {"garbage_datagrams": 0, "garbage_bytes": 0, "truncated": 0, "bad_crc": 0, "foreign_target": 0,
-                  "packets_ok": 0}
-        n = 60_000
+        for i, data in enumerate(packets):
+            s.send(data)
+            if i % 1500 == 1499:
+                s.barrier()
+        s.barrier()
+        _still_flying(e)
+        return e.stop(), s.pings
+
+
+def test_fuzz_classified_datagrams_counted_exactly_while_flying() -> None:
+    rng = np.random.default_rng(20261122)
+    pool = _valid_pool(_packer())
+    expect = {
+        "garbage_datagrams": 0,
+        "garbage_bytes": 0,
+        "truncated": 0,
+        "bad_crc": 0,
+        "foreign_target": 0,
+        "packets_ok": 0,
+    }
+    n = 60_000
+
+    def packets() -> Iterator[bytes]:
         kinds = rng.integers(0, 5, n)
-        for i, k in enumerate(kinds):
+        for k in kinds:
             if k == 0:  # garbage without any frame start byte
                 g = rng.integers(0, 256, int(rng.integers(1, 300)), dtype=np.uint8)
                 g[(g == 0xFD) | (g == 0xFE)] = 0
@@ -115,15 +136,12 @@ def test_fuzz_classified_datagrams_counted_exactly_while_flying() -> None:
             else:  # valid and harmless
                 data = pool["harmless"][int(rng.integers(0, 3))]
                 expect["packets_ok"] += 1
-            s.send(data)
-            if i % 1500 == 1499:
-                s.barrier()
-        s.barrier()
-        _still_flying(e)
-        summary = e.stop()
+            yield data
+
+    summary, pings = _fuzz_while_flying(packets())
     rx = summary["link"]["rx"]
-    assert rx["datagrams"] == n + s.pings + summary["counters"]["commands"]
-    assert rx["packets_ok"] == expect["packets_ok"] + s.pings + summary["counters"]["commands"]
+    assert rx["datagrams"] == n + pings + summary["counters"]["commands"]
+    assert rx["packets_ok"] == expect["packets_ok"] + pings + summary["counters"]["commands"]
     for key in ("garbage_datagrams", "garbage_bytes", "truncated", "bad_crc", "foreign_target"):
         assert rx[key] == expect[key], key
     assert rx["malformed"] == 0 and rx["unknown_msgid"] == 0
@@ -133,15 +151,14 @@ def test_fuzz_classified_datagrams_counted_exactly_while_flying() -> None:
 
 def test_fuzz_random_mutations_never_stop_the_emulator() -> None:
     rng = np.random.default_rng(7)
-    with Emu("--est-ready", "0.2") as e:
-        _fly_to_hold(e)
-        s = Sender(e)
-        mav = _packer()
-        pool = [p for v in _valid_pool(mav).values() for p in v]
-        v1 = mav.set_attitude_target_encode(0, 7, 1, 7, [1, 0, 0, 0], 0, 0, 0, 0.9)
-        pool.append(v1.pack(mav, force_mavlink1=True))
-        n = 40_000
-        for i in range(n):
+    mav = _packer()
+    pool = [p for v in _valid_pool(mav).values() for p in v]
+    v1 = mav.set_attitude_target_encode(0, 7, 1, 7, [1, 0, 0, 0], 0, 0, 0, 0.9)
+    pool.append(v1.pack(mav, force_mavlink1=True))
+    n = 40_000
+
+    def packets() -> Iterator[bytes]:
+        for _ in range(n):
             k = int(rng.integers(0, 4))
             pkt = bytearray(pool[int(rng.integers(0, len(pool)))])
             if k == 0:  # several random byte changes anywhere, including the header
@@ -157,16 +174,21 @@ def test_fuzz_random_mutations_never_stop_the_emulator() -> None:
                 pkt[1] = int(rng.integers(0, 256))
                 if pkt[0] == 0xFD:
                     pkt[2] = int(rng.integers(0, 4))
-            s.send(bytes(pkt))
-            if i % 1500 == 1499:
-                s.barrier()
-        s.barrier()
-        _still_flying(e)
-        summary = e.stop()
+            yield bytes(pkt)
+
+    summary, pings = _fuzz_while_flying(packets())
     rx = summary["link"]["rx"]
-    assert rx["datagrams"] == n + s.pings + summary["counters"]["commands"]
-    outcomes = (rx["packets_ok"] + rx["garbage_datagrams"] + rx["truncated"] + rx["bad_crc"] + rx["malformed"]
-                + rx["unknown_msgid"] + rx["unsigned_rejected"] + rx["bad_signature"])
+    assert rx["datagrams"] == n + pings + summary["counters"]["commands"]
+    outcomes = (
+        rx["packets_ok"]
+        + rx["garbage_datagrams"]
+        + rx["truncated"]
+        + rx["bad_crc"]
+        + rx["malformed"]
+        + rx["unknown_msgid"]
+        + rx["unsigned_rejected"]
+        + rx["bad_signature"]
+    )
     assert outcomes >= rx["datagrams"]  # every datagram was accounted for at least once
     assert rx["bad_crc"] > 1000 and rx["truncated"] > 1000 and rx["garbage_datagrams"] > 100
     assert summary["nonfinite_resets"] == 0 and summary["counters"]["handler_errors"] == 0
@@ -211,8 +233,20 @@ def test_signing_accepts_signed_and_refuses_unsigned_or_badly_signed_commands() 
 
 
 def test_injected_loss_and_latency() -> None:
-    with Emu("--est-ready", "0.2", "--latency", "0.2", "--jitter", "0.02", "--loss-out", "0.5",
-             "--loss-in", "0.3", "--fault-seed", "5") as e:
+    with Emu(
+        "--est-ready",
+        "0.2",
+        "--latency",
+        "0.2",
+        "--jitter",
+        "0.02",
+        "--loss-out",
+        "0.5",
+        "--loss-in",
+        "0.3",
+        "--fault-seed",
+        "5",
+    ) as e:
         e.wait_heartbeat()
         e.wait_ready()
         # outgoing loss: about half of the 100 Hz ATTITUDE stream arrives
@@ -272,8 +306,15 @@ def test_tlog_records_everything_sent_and_received(tmp_path: Any) -> None:
         seen.add((m.get_srcSystem(), m.get_type()))
         n += 1
     assert n == summary["link"]["tlog_records"] == summary["link"]["tx_packets"] + summary["link"]["rx"]["packets_ok"]
-    for item in [(255, "COMMAND_LONG"), (255, "PARAM_REQUEST_READ"), (1, "COMMAND_ACK"), (1, "PARAM_VALUE"),
-                 (1, "HEARTBEAT"), (1, "ATTITUDE"), (2, "GLOBAL_POSITION_INT")]:
+    for item in [
+        (255, "COMMAND_LONG"),
+        (255, "PARAM_REQUEST_READ"),
+        (1, "COMMAND_ACK"),
+        (1, "PARAM_VALUE"),
+        (1, "HEARTBEAT"),
+        (1, "ATTITUDE"),
+        (2, "GLOBAL_POSITION_INT"),
+    ]:
         assert item in seen, item
 
 
@@ -296,8 +337,9 @@ def test_lockstep_is_deterministic_and_fast() -> None:
 def test_lockstep_with_fault_injection_answers_between_steps() -> None:
     """With faults configured (here: a negligible loss), replies due now go out at once even while the lockstep
     clock waits for the next setpoint (a client may wait for an ACK before it sends one)."""
-    with Emu("--lockstep", "--lockstep-grace", "5", "--est-ready", "0.2", "--loss-in", "1e-12",
-             "--loss-out", "1e-12") as e:
+    with Emu(
+        "--lockstep", "--lockstep-grace", "5", "--est-ready", "0.2", "--loss-in", "1e-12", "--loss-out", "1e-12"
+    ) as e:
         e.wait_heartbeat()
         e.wait_ready()
         for _ in range(10):

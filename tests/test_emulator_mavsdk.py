@@ -33,15 +33,23 @@ def _wait(cond: Callable[[], bool], timeout: float, what: str) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("flavor", "autopilot", "thrust", "land_param", "land_speed"), [
-    ("px4", Autopilot.PX4, 0.48, "MPC_LAND_SPEED", 1.5),  # hover is 0.43 of max thrust: climbs
-    ("ardupilot", Autopilot.ARDUPILOT, 0.6, "LAND_SPEED", 100.0),  # climb-rate semantics: 0.5 m/s up
-])
-def test_mavsdk_flies_the_emulator(flavor: str, autopilot: Autopilot, thrust: float, land_param: str,
-                                   land_speed: float) -> None:
+@pytest.mark.parametrize(
+    ("flavor", "autopilot", "thrust", "land_param", "land_speed"),
+    [
+        ("px4", Autopilot.PX4, 0.48, "MPC_LAND_SPEED", 1.5),  # hover is 0.43 of max thrust: climbs
+        ("ardupilot", Autopilot.ARDUPILOT, 0.6, "LAND_SPEED", 100.0),  # climb-rate semantics: 0.5 m/s up
+    ],
+)
+def test_mavsdk_flies_the_emulator(
+    flavor: str, autopilot: Autopilot, thrust: float, land_param: str, land_speed: float
+) -> None:
     port = free_port()
-    proc = subprocess.Popen([str(SLUNG), "emulate", "--flavor", flavor, "--mavlink", f"udpout:127.0.0.1:{port}",
-                             "--est-ready", "0.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [str(SLUNG), "emulate", "--flavor", flavor, "--mavlink", f"udpout:127.0.0.1:{port}", "--est-ready", "0.5"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     drone = Mavsdk(Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER))
     try:
         drone.add_any_connection(f"udpin://127.0.0.1:{port}")

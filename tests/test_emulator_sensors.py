@@ -1,5 +1,5 @@
-"""``slung emulate --sensors``: the telemetry carries the issue-3 sensor models (``sim_bridge.sensors``): white noise
-of the preset's size, the accelerometer bias, the latency (+ jitter) in the sample stamps; seeded and
+"""``slung emulate --sensors``: the telemetry carries the issue-3 sensor models (``sim_bridge.plant.sensors``): white
+noise of the preset's size, the accelerometer bias, the latency (+ jitter) in the sample stamps; seeded and
 deterministic in lockstep. Real UDP on 127.0.0.1, lockstep flights of a hold controller.
 
 Noise sizes are estimated from second differences of the 100 Hz telemetry (``std(x[k+1] - 2 x[k] + x[k-1]) / sqrt 6``
@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from emulator_helpers import Emu, fly_lockstep_hold
 
-from estimators.vehicle import Vehicle
-from sim_bridge.sensors import SensorSuite, preset_spec
+from estimators.model.vehicle import Vehicle
+from sim_bridge.plant.sensors import SensorSuite, preset_spec
 
 V = Vehicle()
 STREAMS = ("ATTITUDE", "LOCAL_POSITION_NED", "HIGHRES_IMU", "DEBUG_VECT")
@@ -25,8 +25,9 @@ SEED = 3  # its accelerometer bias is large enough (> 0.1 m/s^2 on x and y) to b
 
 
 def _flight(sensors: str, seed: int, seconds: float) -> tuple[dict[str, list[tuple[int, Any]]], dict[str, Any]]:
-    with Emu("--lockstep", "--lockstep-grace", "1", "--est-ready", "0.2", "--sensors", sensors,
-             "--seed", str(seed)) as e:
+    with Emu(
+        "--lockstep", "--lockstep-grace", "1", "--est-ready", "0.2", "--sensors", sensors, "--seed", str(seed)
+    ) as e:
         r = fly_lockstep_hold(e, seconds, V, collect=STREAMS)
         summary = e.stop()
     summary["start_ms"] = r["start_ms"]
@@ -66,7 +67,8 @@ def test_noise_matches_the_preset(typical: tuple[dict[str, list[tuple[int, Any]]
 
 
 def test_accelerometer_carries_the_bias_slung_sim_draws(
-        typical: tuple[dict[str, list[tuple[int, Any]]], dict[str, Any]]) -> None:
+    typical: tuple[dict[str, list[tuple[int, Any]]], dict[str, Any]],
+) -> None:
     msgs, summary = typical
     # the same draw as slung sim's sensor suite with the same seed (its first draw from the seeded generator)
     expected = SensorSuite("px4-typical", V, np.random.default_rng(SEED)).accel_bias
@@ -81,15 +83,18 @@ def test_accelerometer_carries_the_bias_slung_sim_draws(
 
 
 def test_latency_and_jitter_are_in_the_sample_stamps(
-        typical: tuple[dict[str, list[tuple[int, Any]]], dict[str, Any]]) -> None:
+    typical: tuple[dict[str, list[tuple[int, Any]]], dict[str, Any]],
+) -> None:
     """Each message is sent at a step marker and stamped with its sample time, latency + U(0, jitter) earlier
     (on the 1 ms plant grid, rounded to the older step)."""
     msgs, _ = typical
     pr = preset_spec("px4-typical")
-    for name, spec, stamp in (("ATTITUDE", pr.attitude, lambda m: m.time_boot_ms),
-                              ("LOCAL_POSITION_NED", pr.position, lambda m: m.time_boot_ms),
-                              ("HIGHRES_IMU", pr.imu, lambda m: m.time_usec // 1000),
-                              ("DEBUG_VECT", pr.load, lambda m: m.time_usec // 1000)):
+    for name, spec, stamp in (
+        ("ATTITUDE", pr.attitude, lambda m: m.time_boot_ms),
+        ("LOCAL_POSITION_NED", pr.position, lambda m: m.time_boot_ms),
+        ("HIGHRES_IMU", pr.imu, lambda m: m.time_usec // 1000),
+        ("DEBUG_VECT", pr.load, lambda m: m.time_usec // 1000),
+    ):
         lags = [marker - stamp(m) for marker, m in msgs[name]]
         lo, hi = math.floor(spec.latency_s * 1000), math.ceil((spec.latency_s + spec.jitter_s) * 1000)
         assert lo <= min(lags) and max(lags) <= hi, name
@@ -131,7 +136,8 @@ def _wire(msgs: dict[str, list[tuple[int, Any]]], start_ms: int, until_ms: int) 
 
 
 def test_same_seed_same_telemetry_other_seed_differs(
-        typical: tuple[dict[str, list[tuple[int, Any]]], dict[str, Any]]) -> None:
+    typical: tuple[dict[str, list[tuple[int, Any]]], dict[str, Any]],
+) -> None:
     """Lockstep: the same seed gives bit-identical telemetry values (float32 as sent), another seed other ones."""
     again, s2 = _flight("px4-typical", SEED, 3.0)
     other, s3 = _flight("px4-typical", SEED + 1, 3.0)

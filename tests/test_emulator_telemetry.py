@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from estimators.vehicle import Vehicle
-from sim_bridge.dynamics import hover_input, make_state, plant_params
-from sim_bridge.telemetry import EARTH_RADIUS, Home, Snapshot, TelemetrySource
+from estimators.model.vehicle import Vehicle
+from sim_bridge.plant.dynamics import hover_input, make_state, plant_params
+from sim_bridge.protocol.telemetry import EARTH_RADIUS, Home, Snapshot, TelemetrySource
 
 V = Vehicle()
 P = plant_params(V, "rigid")

@@ -1,6 +1,6 @@
 """The Kalman estimator against the plant: tracking, consistency (NEES), sensorless convergence, robustness.
 
-Every scenario runs the real plant (``sim_bridge.dynamics``) and the real sensor models; the controller is
+Every scenario runs the real plant (``sim_bridge.plant.dynamics``) and the real sensor models; the controller is
 either open loop (small sinusoidal commands around hover) or a PD hover hold on the true state written here
 (a test harness, not the paper's controller). The commands are pushed to the estimator as a controller would.
 """
@@ -15,17 +15,17 @@ import pytest
 from filterpy.kalman import KalmanFilter
 from scipy.stats import chi2
 
-from estimators.cable import cable_from_planar, planar_swing
-from estimators.control_state import ControlState
 from estimators.errors import UserError
-from estimators.factory import ESTIMATOR_KINDS, make_estimator
-from estimators.flatness import FlatConstants, flat_chain, flat_constants, world_tilt
-from estimators.kf import NEES_DOF, STATE_NAMES, KalmanEstimator, Tuning
-from estimators.linear_block import LinearBlock
-from estimators.measurements import Attitude, Imu, LoadAngle, Measurement, PositionVelocity
-from estimators.vehicle import Vehicle
-from sim_bridge import dynamics
-from sim_bridge.sensors import SensorSuite
+from estimators.filters.factory import ESTIMATOR_KINDS, make_estimator
+from estimators.filters.kf import NEES_DOF, STATE_NAMES, KalmanEstimator, Tuning
+from estimators.filters.linear_block import LinearBlock
+from estimators.model.cable import cable_from_planar, planar_swing
+from estimators.model.control_state import ControlState
+from estimators.model.flatness import FlatConstants, flat_constants, truth_control_state, world_tilt
+from estimators.model.measurements import Attitude, Imu, LoadAngle, Measurement, PositionVelocity
+from estimators.model.vehicle import Vehicle
+from sim_bridge.plant import dynamics
+from sim_bridge.plant.sensors import SensorSuite
 
 V = Vehicle()
 P = dynamics.plant_params(V)
@@ -39,16 +39,15 @@ Tamper = Callable[[float, list[Measurement], np.random.Generator], list[Measurem
 
 
 def truth_state(x: list[float], k: FlatConstants = K) -> ControlState:
-    ay, ax, ayd, axd = planar_swing(x[12], x[13], x[14], x[15], x[16], x[17])
-    nx, ny, nxd, nyd = world_tilt(x[6], x[7], x[8], x[9], x[10], x[11])
-    return ControlState(flat_chain(k, x[0], x[3], ay, ayd, nx, nxd), flat_chain(k, x[1], x[4], ax, axd, ny, nyd),
-                        x[2], x[5], x[6], x[7], x[8], x[9], x[10], x[11], ax, ay, axd, ayd)
+    return truth_control_state(x, k)
 
 
 def open_loop(t: float, x: list[float]) -> tuple[float, tuple[float, float, float]]:
     """Hover thrust and small sinusoidal torques (a few degrees of tilt)."""
-    return (V.hover_thrust + 0.3 * math.sin(2.0 * t),
-            (0.002 * math.sin(3.0 * t), 0.002 * math.cos(2.5 * t), 0.001 * math.sin(t)))
+    return (
+        V.hover_thrust + 0.3 * math.sin(2.0 * t),
+        (0.002 * math.sin(3.0 * t), 0.002 * math.cos(2.5 * t), 0.001 * math.sin(t)),
+    )
 
 
 def pd_hold(t: float, x: list[float]) -> tuple[float, tuple[float, float, float]]:
@@ -108,10 +107,22 @@ def simulate(
         pending = []
         e = est.estimate(t)
         tr = truth_state(x)
-        rows.append((t, e.alpha_x - tr.alpha_x, e.alpha_y - tr.alpha_y, e.fx[0] - tr.fx[0], e.fy[0] - tr.fy[0],
-                     e.fx[1] - tr.fx[1], e.z - tr.z, math.remainder(e.psi - tr.psi, 2 * math.pi),
-                     e.phi - tr.phi, e.theta - tr.theta, e.alpha_y_rate - tr.alpha_y_rate,
-                     float(e.is_finite())))
+        rows.append(
+            (
+                t,
+                e.alpha_x - tr.alpha_x,
+                e.alpha_y - tr.alpha_y,
+                e.fx[0] - tr.fx[0],
+                e.fy[0] - tr.fy[0],
+                e.fx[1] - tr.fx[1],
+                e.z - tr.z,
+                math.remainder(e.psi - tr.psi, 2 * math.pi),
+                e.phi - tr.phi,
+                e.theta - tr.theta,
+                e.alpha_y_rate - tr.alpha_y_rate,
+                float(e.is_finite()),
+            )
+        )
         if nees_every and t >= 2.0 and i % round(nees_every * rate) == 0:
             nees.append(est.nees(t, tr))
         thrust, tau = controller(t, x)
@@ -131,8 +142,13 @@ def simulate(
             pending.extend(sensors.sample(t + (j + 1) * h, x, u))
     cols = ("t", "alpha_x", "alpha_y", "Fx0", "Fy0", "Fx1", "z", "psi", "phi", "theta", "alpha_y_rate", "finite")
     arr = np.array(rows)
-    return {"err": {c: arr[:, i] for i, c in enumerate(cols)}, "nees": np.array(nees), "stats": est.stats(),
-            "pushed": pushed, "estimator": est}
+    return {
+        "err": {c: arr[:, i] for i, c in enumerate(cols)},
+        "nees": np.array(nees),
+        "stats": est.stats(),
+        "pushed": pushed,
+        "estimator": est,
+    }
 
 
 def rms_after(res: dict, name: str, t0: float) -> float:
@@ -147,7 +163,7 @@ def swing_rms_deg(res: dict, t0: float) -> float:
 
 # -------------------------------------------------------------------------------------------------------------
 def test_factory() -> None:
-    assert ESTIMATOR_KINDS == ("truth", "kf")
+    assert ESTIMATOR_KINDS == ("truth", "kf", "kf-torque")
     est = make_estimator("kf", V, load_sensor=False, rate_hz=250.0)
     for name in ("initialize", "push", "push_command", "estimate", "covariance", "nees", "stats"):
         assert callable(getattr(est, name))
@@ -164,7 +180,9 @@ def test_tracks_the_plant(load_sensor: bool, swing_deg: float) -> None:
     res = simulate(seed=11, load_sensor=load_sensor, seconds=8.0)
     assert np.all(res["err"]["finite"] == 1.0)
     assert swing_rms_deg(res, 2.0) < swing_deg
-    assert rms_after(res, "Fx0", 2.0) < 0.01 and rms_after(res, "Fy0", 2.0) < 0.01  # m
+    # m; 1.0 cm for the torque-driven filter: the measured-input filter lets the autopilot's position wander apart
+    # from its velocity (q_p, as EKF2's does when it fuses GNSS), which passes ~10 % more white position noise
+    assert rms_after(res, "Fx0", 2.0) < 0.0125 and rms_after(res, "Fy0", 2.0) < 0.0125
     assert rms_after(res, "Fx1", 2.0) < 0.05  # m/s
     assert rms_after(res, "z", 2.0) < 0.015  # position noise is 3 cm vertical
     assert math.degrees(rms_after(res, "psi", 2.0)) < 0.5
@@ -180,8 +198,18 @@ def test_nees_inside_the_95_percent_band(load_sensor: bool) -> None:
     average NEES over runs and times (samples 1 s apart) must lie in the two-sided 95% chi-square band."""
     values = []
     for seed in range(10, 18):
-        res = simulate(seed=seed, load_sensor=load_sensor, seconds=12.0, swing=(0.05, -0.03), controller=pd_hold,
-                       noise=Tuning(), nees_every=1.0, h=0.002, rate=100.0)
+        res = simulate(
+            seed=seed,
+            load_sensor=load_sensor,
+            seconds=12.0,
+            swing=(0.05, -0.03),
+            controller=pd_hold,
+            noise=Tuning(),
+            nees_every=1.0,
+            h=0.002,
+            rate=100.0,
+            estimator=KalmanEstimator(V, load_sensor=load_sensor, rate_hz=100.0),  # the harness drives its model
+        )
         values.extend(res["nees"])
     n = len(values)
     lo, hi = chi2.ppf(0.025, NEES_DOF * n) / n, chi2.ppf(0.975, NEES_DOF * n) / n
@@ -233,9 +261,11 @@ def test_a_sensor_goes_silent(load_sensor: bool) -> None:
     e, t = res["err"], res["err"]["t"]
     assert np.all(e["finite"] == 1.0)
     gap = (t >= 2.0) & (t < 5.0)
-    assert np.max(np.abs(e["Fx0"][gap])) < 0.3 and np.max(np.abs(e["z"][gap])) < 0.3
+    # height 0.3 m for the torque-driven filter (it knew the commanded thrust); the measured-input one dead-reckons on
+    # the accelerometer, whose bias is not yet learnt 2 s after the start: 0.41 m after 3 s of silence
+    assert np.max(np.abs(e["Fx0"][gap])) < 0.3 and np.max(np.abs(e["z"][gap])) < 0.5
     back = t >= 6.0
-    assert np.max(np.abs(e["Fx0"][back])) < 0.03 and np.max(np.abs(e["z"][back])) < 0.03
+    assert np.max(np.abs(e["Fx0"][back])) < 0.04 and np.max(np.abs(e["z"][back])) < 0.04  # 3 cm before q_p
     assert math.degrees(np.max(np.abs(e["alpha_y"][back]))) < (1.5 if load_sensor else 4.0)
 
 
@@ -359,7 +389,7 @@ def test_linear_block_matches_filterpy() -> None:
         for c, kf in enumerate(kfs):
             kf.F, kf.Q, kf.B = d.phi, d.q, d.gamma_t.T
             kf.predict(u=w[c].reshape(2, 1))
-            kf.update(np.array(z[2 * c:2 * c + 2]).reshape(2, 1), R=np.diag([4e-4, 9e-4]), H=np.eye(8)[[0, 1]])
+            kf.update(np.array(z[2 * c : 2 * c + 2]).reshape(2, 1), R=np.diag([4e-4, 9e-4]), H=np.eye(8)[[0, 1]])
             kf.update(np.array([[za[c]]]), R=np.array([[0.04]]), H=row.reshape(1, 8))
     for c, kf in enumerate(kfs):
         np.testing.assert_allclose(x[c], kf.x.ravel(), rtol=1e-8, atol=1e-10)
@@ -367,7 +397,8 @@ def test_linear_block_matches_filterpy() -> None:
 
 
 def test_covariance_ordering_and_shape() -> None:
-    res = simulate(seed=19, load_sensor=True, seconds=1.0)
+    est = KalmanEstimator(V, load_sensor=True, rate_hz=200.0)
+    res = simulate(seed=19, load_sensor=True, seconds=1.0, estimator=est)
     est = res["estimator"]
     c = est.covariance()
     assert c.shape == (len(STATE_NAMES), len(STATE_NAMES)) == (22, 22)
@@ -441,8 +472,8 @@ def test_van_loan_and_gate_constants_are_filterpys_and_scipys_exactly() -> None:
     from filterpy.common import van_loan_discretization as filterpy_van_loan
     from scipy.stats import chi2
 
-    from estimators import kf as kf_mod
-    from estimators.linear_block import van_loan_discretization
+    from estimators.filters import fusion as kf_mod
+    from estimators.filters.linear_block import van_loan_discretization
 
     rng = np.random.default_rng(11)
     for n, dt in ((2, 0.004), (4, 0.01), (8, 0.0033)):

@@ -1,5 +1,5 @@
-"""Pre-flight feasibility check (`offboard/feasibility.py`): the bundled scenarios pass, an aggressive hop is caught,
-the nominal demands agree with the simulated closed loop, and a weaker airframe turns a feasible reference
+"""Pre-flight feasibility check (`offboard/control/feasibility.py`): the bundled scenarios pass, an aggressive hop is
+caught, the nominal demands agree with the simulated closed loop, and a weaker airframe turns a feasible reference
 infeasible. Formulas and thresholds: docs/references.md, "Pre-flight feasibility check"."""
 
 from __future__ import annotations
@@ -10,19 +10,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimators.control_state import ControlState
-from estimators.vehicle import Vehicle
-from offboard import sim, smc
-from offboard.command_mapping import MappingConfig
-from offboard.feasibility import (
+from estimators.model.control_state import ControlState
+from estimators.model.vehicle import Vehicle
+from offboard.control import smc
+from offboard.control.feasibility import (
     LINEARIZATION_WARN_RAD,
     FeasibilityLimits,
     check_reference,
     format_report,
     nominal_profile,
 )
-from offboard.reference import load_trajectory_file, rest_to_rest
-from offboard.scenarios import make_scenario
+from offboard.control.reference_patterns import rest_to_rest
+from offboard.control.scenarios import make_scenario
+from offboard.control.trajectory_file import load_trajectory_file
+from offboard.flight.command_mapping import MappingConfig
+from offboard.harness import sim
 
 DEFAULT = Vehicle()
 
@@ -121,9 +123,9 @@ def _peak(x: np.ndarray) -> tuple[float, int]:
 
 
 def test_nominal_demands_match_the_simulated_closed_loop() -> None:
-    """slung sim's closed loop (offboard.sim.run, true state, 1 kHz, smooth switching so the commands do not chatter)
-    on the paper scenario's first 20 s (climb, heading change, figure-eight entry and cruise; no disturbance) and on
-    rest-to-rest (aggressive: 0.74 rad swing). The peaks of the nominal open-loop signals must agree with the
+    """slung sim's closed loop (offboard.harness.sim.run, true state, 1 kHz, smooth switching so the commands do not
+    chatter) on the paper scenario's first 20 s (climb, heading change, figure-eight entry and cruise; no disturbance)
+    and on rest-to-rest (aggressive: 0.74 rad swing). The peaks of the nominal open-loop signals must agree with the
     simulated ones: swing, tilt and thrust within 3 % (rest-to-rest thrust: its deviation from hover within 8 %,
     where the measured and nominal are 0.84 and 0.80 N), yaw torque within 3 %, and the times of the peaks within
     0.1 s. Measured when written: paper swing 0.02077 / 0.02077 rad, theta 0.01887 / 0.01887 rad, thrust 7.283 /
@@ -166,8 +168,8 @@ def test_nominal_demands_match_the_simulated_closed_loop() -> None:
 
 def test_torques_equal_the_controller_feed_forward_on_the_reference() -> None:
     """With the estimate exactly on the reference (every error and integral zero, so the switching and feedback
-    terms vanish), offboard.smc.step returns the feed-forward torques: they must equal the nominal ones, including
-    the heading-rate terms while psi moves (rest-to-rest with a 0.4 rad heading change, t in the move)."""
+    terms vanish), offboard.control.smc.step returns the feed-forward torques: they must equal the nominal ones,
+    including the heading-rate terms while psi moves (rest-to-rest with a 0.4 rad heading change, t in the move)."""
     ref = rest_to_rest((0.0, 0.0, 1.0, 0.0), (1.0, 0.6, 1.0, 0.4), 0.5, 3.0)
     params = smc.ControllerParams.for_vehicle(DEFAULT)
     g = DEFAULT.gravity
@@ -176,9 +178,20 @@ def test_torques_equal_the_controller_feed_forward_on_the_reference() -> None:
     for k, t in enumerate(times):
         s = ref.sample(t)
         est = ControlState(
-            s.fx[:6], s.fy[:6], s.z[0], s.z[1], float(nom["phi"][k]), float(nom["theta"][k]), s.psi[0],
-            float(nom["phi_rate"][k]), float(nom["theta_rate"][k]), s.psi[1],
-            -s.fy[2] / g, -s.fx[2] / g, -s.fy[3] / g, -s.fx[3] / g,
+            s.fx[:6],
+            s.fy[:6],
+            s.z[0],
+            s.z[1],
+            float(nom["phi"][k]),
+            float(nom["theta"][k]),
+            s.psi[0],
+            float(nom["phi_rate"][k]),
+            float(nom["theta_rate"][k]),
+            s.psi[1],
+            -s.fy[2] / g,
+            -s.fx[2] / g,
+            -s.fy[3] / g,
+            -s.fx[3] / g,
         )
         cmd, _ = smc.step(t, est, s.fx, s.fy, s.z, s.psi, smc.ControllerMemory(), params)
         assert not cmd.saturated
@@ -277,8 +290,9 @@ def test_fast_descent_needs_downward_thrust_and_slackens_the_cable() -> None:
     gentle = rest_to_rest((0.0, 0.0, 3.0), (0.0, 0.0, 1.0), 0.5, 4.0)
     ok = check_reference(gentle, gentle.duration, DEFAULT, limits_for(DEFAULT))
     assert ok.feasible and ok.messages == ()
-    assert ok.demand("tension").peak == pytest.approx(DEFAULT.mass_load * (DEFAULT.gravity - 2.0 * 15.095 / 16.0),
-                                                      rel=0.01)
+    assert ok.demand("tension").peak == pytest.approx(
+        DEFAULT.mass_load * (DEFAULT.gravity - 2.0 * 15.095 / 16.0), rel=0.01
+    )
 
 
 def test_format_report_lists_every_quantity_and_the_verdict() -> None:

@@ -1,5 +1,5 @@
-"""estimators/flatness.py against the corrected linear model (offboard/linear_model.py): the flat-output chain
-of errata E9 holds along the linear dynamics, the torque first appears in F^(6), and the world-frame chain
+"""estimators/model/flatness.py against the corrected linear model (offboard/control/linear_model.py): the flat-output
+chain of errata E9 holds along the linear dynamics, the torque first appears in F^(6), and the world-frame chain
 holds at any heading."""
 
 from __future__ import annotations
@@ -10,12 +10,14 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from estimators.flatness import flat_chain, flat_constants, planar_state, world_tilt
-from estimators.vehicle import Vehicle
-from offboard.linear_model import linear_model, xz_model, yz_model
+from estimators.model.flatness import flat_chain, flat_constants, planar_state, world_tilt
+from estimators.model.vehicle import Vehicle
+from offboard.control.linear_model import linear_model, xz_model, yz_model
 
-VEHICLES = (Vehicle(), Vehicle(mass_vehicle=1.2, mass_load=0.3, cable_length=1.0, inertia=(0.02, 0.03, 0.05),
-                               motor_thrust_max=8.0))
+VEHICLES = (
+    Vehicle(),
+    Vehicle(mass_vehicle=1.2, mass_load=0.3, cable_length=1.0, inertia=(0.02, 0.03, 0.05), motor_thrust_max=8.0),
+)
 
 
 def _plane_chain(k, s: np.ndarray, tilt_sign: float) -> np.ndarray:
@@ -101,8 +103,10 @@ def test_world_frame_chain_at_any_heading(psibar: float) -> None:
 
     def chains(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         nx, ny, nxd, nyd = world_tilt(z[6], z[7], psibar + z[8], z[9], z[10], z[11])
-        return (np.array(flat_chain(k, z[0], z[3], z[12], z[14], nx, nxd)),
-                np.array(flat_chain(k, z[1], z[4], z[13], z[15], ny, nyd)))
+        return (
+            np.array(flat_chain(k, z[0], z[3], z[12], z[14], nx, nxd)),
+            np.array(flat_chain(k, z[1], z[4], z[13], z[15], ny, nyd)),
+        )
 
     rng = np.random.default_rng(8)
     for _ in range(50):
@@ -134,8 +138,15 @@ def test_chain_along_a_propagated_trajectory() -> None:
     h = 1e-4
     ts = np.array([0.5, 1.0, 1.5])
     t_eval = np.sort(np.concatenate([ts - h, ts, ts + h]))
-    sol = solve_ivp(lambda t, s: lin.A @ s + lin.B[:, 0] * tau(t), (0.0, 2.0), s0, method="DOP853",
-                    rtol=1e-12, atol=1e-14, t_eval=t_eval)
+    sol = solve_ivp(
+        lambda t, s: lin.A @ s + lin.B[:, 0] * tau(t),
+        (0.0, 2.0),
+        s0,
+        method="DOP853",
+        rtol=1e-12,
+        atol=1e-14,
+        t_eval=t_eval,
+    )
     assert sol.success
     for i in range(3):
         fm, f0, fp = (_plane_chain(k, sol.y[:, 3 * i + j], 1.0) for j in range(3))

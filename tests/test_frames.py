@@ -1,4 +1,4 @@
-"""estimators/frames.py: NED/FRD <-> model NWU/FLU conversions are inverse pairs, mutually consistent,
+"""estimators/model/frames.py: NED/FRD <-> model NWU/FLU conversions are inverse pairs, mutually consistent,
 and physically right (checked against rotation matrices built here from first principles)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from estimators import frames
+from estimators.model import frames
 
 P = np.diag([1.0, -1.0, -1.0])
 
@@ -26,11 +26,13 @@ def _rot_zyx(phi: float, theta: float, psi: float) -> np.ndarray:
 
 def _rot_quat(q: tuple[float, float, float, float]) -> np.ndarray:
     w, x, y, z = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def _random_euler(rng: np.random.Generator) -> tuple[float, float, float]:

@@ -17,14 +17,14 @@ import numpy as np
 import pytest
 from kf_reference import ReferenceKalmanEstimator
 
-from estimators.cable import cable_from_planar, planar_swing
-from estimators.control_state import ControlState
-from estimators.flatness import flat_chain, flat_constants, world_tilt
-from estimators.kf import KalmanEstimator
-from estimators.measurements import Attitude, Imu, LoadAngle, Measurement, PositionVelocity
-from estimators.vehicle import Vehicle
-from sim_bridge import dynamics
-from sim_bridge.sensors import SensorSuite
+from estimators.filters.kf import KalmanEstimator
+from estimators.model.cable import cable_from_planar
+from estimators.model.control_state import ControlState
+from estimators.model.flatness import flat_constants, truth_control_state
+from estimators.model.measurements import Attitude, Imu, LoadAngle, Measurement, PositionVelocity
+from estimators.model.vehicle import Vehicle
+from sim_bridge.plant import dynamics
+from sim_bridge.plant.sensors import SensorSuite
 
 V = Vehicle()
 K = flat_constants(V)
@@ -33,18 +33,17 @@ PLANT_DT = 0.001
 
 
 def _truth(x: list[float]) -> ControlState:
-    ay, ax, ayd, axd = planar_swing(x[12], x[13], x[14], x[15], x[16], x[17])
-    nx, ny, nxd, nyd = world_tilt(x[6], x[7], x[8], x[9], x[10], x[11])
-    return ControlState(flat_chain(K, x[0], x[3], ay, ayd, nx, nxd), flat_chain(K, x[1], x[4], ax, axd, ny, nyd),
-                        x[2], x[5], x[6], x[7], x[8], x[9], x[10], x[11], ax, ay, axd, ayd)
+    return truth_control_state(x, K)
 
 
 def _command(t: float) -> tuple[float, tuple[float, float, float]]:
     """Open-loop command (N, N m): hover thrust and sinusoidal torques, with a few non-finite commands."""
     if 3.0 <= t < 3.02:
         return math.nan, (0.0, 0.0, 0.0)
-    return (V.hover_thrust + 0.4 * math.sin(2.0 * t),
-            (0.004 * math.sin(3.0 * t), 0.004 * math.cos(2.5 * t), 0.002 * math.sin(t)))
+    return (
+        V.hover_thrust + 0.4 * math.sin(2.0 * t),
+        (0.004 * math.sin(3.0 * t), 0.004 * math.cos(2.5 * t), 0.002 * math.sin(t)),
+    )
 
 
 @dataclass
@@ -98,8 +97,22 @@ def stream() -> Stream:
 
 
 def _values(e: ControlState) -> list[float]:
-    return [*e.fx, *e.fy, e.z, e.z_rate, e.phi, e.theta, e.psi, e.phi_rate, e.theta_rate, e.psi_rate,
-            e.alpha_x, e.alpha_y, e.alpha_x_rate, e.alpha_y_rate]
+    return [
+        *e.fx,
+        *e.fy,
+        e.z,
+        e.z_rate,
+        e.phi,
+        e.theta,
+        e.psi,
+        e.phi_rate,
+        e.theta_rate,
+        e.psi_rate,
+        e.alpha_x,
+        e.alpha_y,
+        e.alpha_x_rate,
+        e.alpha_y_rate,
+    ]
 
 
 @pytest.mark.parametrize(("rate", "load_sensor"), [(250.0, True), (250.0, False), (100.0, False), (500.0, True)])

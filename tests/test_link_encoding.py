@@ -6,17 +6,18 @@ import math
 import os
 import struct
 
+import numpy as np
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
-from estimators import frames
 from estimators.errors import UserError
-from estimators.measurements import Attitude, Imu, LoadAngle, PositionVelocity
-from offboard.link import setpoints as spm
-from offboard.link.connection import TlogWriter, VehicleClock, normalize_url
-from offboard.link.telemetry import TelemetryDecoder, load_angle_from_ned
+from estimators.model import frames
+from estimators.model.measurements import Attitude, Imu, LoadAngle, PositionVelocity
+from offboard.flight.link import setpoints as spm
+from offboard.flight.link.connection import TlogWriter, VehicleClock, normalize_url
+from offboard.flight.link.telemetry import TelemetryDecoder, load_angle_from_ned
 
 
 def _mav(system: int = 1, component: int = 1) -> mavutil.mavlink.MAVLink:
@@ -54,14 +55,17 @@ def test_actuator_setpoint_round_trip() -> None:
     assert spm.decode(got) == pytest.approx(sp, abs=1e-7)
 
 
-@pytest.mark.parametrize("bad", [
-    spm.AttitudeTarget((1.0, 0.0, 0.0, 0.0), math.nan, 0.0, 0.0, 0.5, 7),
-    spm.AttitudeTarget((1.0, 0.0, 0.0, math.inf), 0.0, 0.0, 0.0, 0.5, 7),
-    spm.AttitudeTarget((0.9, 0.0, 0.0, 0.0), 0.0, 0.0, 0.0, 0.5, 7),
-    spm.AttitudeTarget((1.0, 0.0, 0.0, 0.0), 0.0, 0.0, 0.0, 1.2, 7),
-    spm.ActuatorTarget(0.0, math.nan, 0.0, 0.5),
-    spm.ActuatorTarget(0.0, 0.0, 1.5, 0.5),
-])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        spm.AttitudeTarget((1.0, 0.0, 0.0, 0.0), math.nan, 0.0, 0.0, 0.5, 7),
+        spm.AttitudeTarget((1.0, 0.0, 0.0, math.inf), 0.0, 0.0, 0.0, 0.5, 7),
+        spm.AttitudeTarget((0.9, 0.0, 0.0, 0.0), 0.0, 0.0, 0.0, 0.5, 7),
+        spm.AttitudeTarget((1.0, 0.0, 0.0, 0.0), 0.0, 0.0, 0.0, 1.2, 7),
+        spm.ActuatorTarget(0.0, math.nan, 0.0, 0.5),
+        spm.ActuatorTarget(0.0, 0.0, 1.5, 0.5),
+    ],
+)
 def test_non_finite_or_out_of_range_setpoints_are_refused(bad) -> None:
     with pytest.raises(spm.SetpointError):
         spm.encode(_mav(), bad, 1.0, 1, 1)
@@ -97,8 +101,28 @@ def test_position_and_imu_telemetry_to_model_frame() -> None:
 def test_odometry_body_velocity_rotated_to_world() -> None:
     # heading 90 deg east (NED yaw +pi/2), moving forward at 1 m/s -> NED velocity east -> model vy = -1
     q = frames.euler_to_quaternion(0.0, 0.0, math.pi / 2)
-    got, _ = _wire(_mav().odometry_encode(4_000_000, 1, 12, 1.0, 2.0, -3.0, list(q), 1.0, 0.0, 0.0, 0, 0, 0,
-                                          [math.nan] * 21, [math.nan] * 21, 0, 0, 100))
+    got, _ = _wire(
+        _mav().odometry_encode(
+            4_000_000,
+            1,
+            12,
+            1.0,
+            2.0,
+            -3.0,
+            list(q),
+            1.0,
+            0.0,
+            0.0,
+            0,
+            0,
+            0,
+            [math.nan] * 21,
+            [math.nan] * 21,
+            0,
+            0,
+            100,
+        )
+    )
     m = TelemetryDecoder(system=1, use_odometry=True).decode(got)
     assert isinstance(m, PositionVelocity) and m.t == pytest.approx(4.0)
     assert (m.vx, m.vy, m.vz) == pytest.approx((0.0, -1.0, 0.0), abs=1e-6)
@@ -146,6 +170,53 @@ def test_clock_from_timesync_uses_round_trip_midpoint() -> None:
     assert c.offset == pytest.approx(99.002)
 
 
+def test_clock_from_timesync_follows_a_vehicle_clock_that_runs_slow() -> None:
+    """PX4 SITL's clock runs slower than ours on a loaded machine (3-25 %): the clock fitted through the exchanges
+    maps local to vehicle time within a millisecond, where a fixed offset was 0.1 s off within a second."""
+    c = VehicleClock()
+    rate, v0 = 0.8, 1000.0
+    for k in range(12):  # an exchange every 0.5 s, 2 ms round trip
+        send = 10.0 + 0.5 * k
+        c.observe_timesync(v0 + rate * (send + 0.001 - 10.0), send, send + 0.002)
+    now = 10.0 + 0.5 * 11 + 0.4  # between exchanges
+    assert c.rate == pytest.approx(rate, rel=1e-6) and c.rate_fitted
+    assert c.to_vehicle(now) == pytest.approx(v0 + rate * (now - 10.0), abs=1e-3)
+    assert c.to_local(c.to_vehicle(now)) == pytest.approx(now, abs=1e-9)
+    fixed = now - c.offset  # what a fixed offset from the last exchange would say
+    assert abs(fixed - (v0 + rate * (now - 10.0))) > 0.05
+
+
+def test_clock_follows_a_rate_change_from_its_latest_exchange_and_says_when_it_is_not_steady() -> None:
+    """PX4 SITL's clock rate changes with the machine's load. Anchored at the latest exchange, the clock is off by
+    at most the rate's change over the time since that exchange; a line anchored at the exchanges' centroid was
+    off by the change over two seconds (a false 101 ms telemetry age in CI). Right after the change the clock
+    says it is not steady (the loop then takes no telemetry age from it); once the fit holds again, it is."""
+    c = VehicleClock()
+    exchanges: list[tuple[float, float]] = []
+    v = 1000.0
+
+    def vehicle_at(local: float) -> float:  # the vehicle clock: rate 1 until local 15.75 s, then 0.85
+        return v + min(local, 15.75) - 10.0 + 0.85 * max(local - 15.75, 0.0)
+
+    for k in range(13):  # an exchange every 0.5 s, 2 ms round trip; the 13th (local 16 s) sees the new rate
+        send = 10.0 + 0.5 * k
+        c.observe_timesync(vehicle_at(send + 0.001), send, send + 0.002)
+        exchanges.append((send + 0.001, vehicle_at(send + 0.001)))
+        assert c.steady == (2 <= k < 12), k
+    now = 16.0 + 0.4
+    err = abs(c.to_vehicle(now) - vehicle_at(now))
+    tail = np.array(exchanges[-8:])
+    slope, icpt = np.polyfit(tail[:, 0], tail[:, 1], 1)
+    centroid_err = abs(slope * now + icpt - vehicle_at(now))
+    assert err < 0.035 and centroid_err > 0.05, (err, centroid_err)
+    for k in range(13, 16):  # the new rate holds: the fit restarted at the change is steady again within two exchanges
+        send = 10.0 + 0.5 * k
+        c.observe_timesync(vehicle_at(send + 0.001), send, send + 0.002)
+        assert c.steady == (k >= 14), k
+    assert c.rate == pytest.approx(0.85, rel=1e-6)
+    assert c.to_vehicle(17.9) == pytest.approx(vehicle_at(17.9), abs=1e-3)
+
+
 def test_tlog_format_is_readable_by_pymavlink(tmp_path) -> None:
     path = tmp_path / "x.tlog"
     w = TlogWriter(path)
@@ -186,8 +257,12 @@ def test_ardupilot_raw_imu_and_scaled_imu2_are_fallback_imu_sources() -> None:
     assert (m.gx, m.gy, m.gz) == pytest.approx((0.1, 0.2, -0.3), abs=1e-9)
     got, _ = _wire(mav.raw_imu_encode(2_000_000, 0, 0, -1000, 0, 0, 50, 0, 0, 0))
     m = dec.decode(got)
-    assert isinstance(m, Imu) and m.t == pytest.approx(2.0) and m.az == pytest.approx(9.80665) and \
-        m.gz == pytest.approx(-0.05)
+    assert (
+        isinstance(m, Imu)
+        and m.t == pytest.approx(2.0)
+        and m.az == pytest.approx(9.80665)
+        and m.gz == pytest.approx(-0.05)
+    )
     # RAW_IMU seen: IMU 2 is now refused
     got, _ = _wire(mav.scaled_imu2_encode(2500, 0, 0, -1000, 0, 0, 0, 0, 0, 0))
     assert dec.decode(got) is None and dec.counts["refused_secondary_imu"] == 1

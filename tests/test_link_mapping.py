@@ -1,5 +1,5 @@
 """Command mapping: N and N m -> normalized setpoints; the torque -> attitude inversion checked against an
-autopilot attitude / rate cascade (the emulator's, ``sim_bridge.airframe``); limits; NaN never passes."""
+autopilot attitude / rate cascade (the emulator's, ``sim_bridge.inner.airframe``); limits; NaN never passes."""
 
 from __future__ import annotations
 
@@ -8,13 +8,15 @@ import math
 import numpy as np
 import pytest
 
-from estimators import frames
-from estimators.control_state import ControlState
-from estimators.vehicle import Vehicle
-from offboard.command_mapping import AutopilotModel, CommandMapper, MappingConfig, euler_rates_to_body
-from offboard.link.setpoints import ActuatorTarget, AttitudeTarget, encode
-from offboard.smc import Command
-from sim_bridge.airframe import AttitudeController
+from estimators.model import frames
+from estimators.model.control_state import ControlState
+from estimators.model.rotations import body_rates
+from estimators.model.vehicle import Vehicle
+from offboard.control.smc import Command
+from offboard.flight.command_mapping import CommandMapper, MappingConfig
+from offboard.flight.link.autopilot_model import AutopilotModel
+from offboard.flight.link.setpoints import ActuatorTarget, AttitudeTarget, encode
+from sim_bridge.inner.airframe import AttitudeController
 
 
 def _state(phi=0.0, theta=0.0, psi=0.0, dphi=0.0, dtheta=0.0, dpsi=0.0) -> ControlState:
@@ -32,7 +34,7 @@ def _realized_torque(v: Vehicle, est: ControlState, sp: AttitudeTarget) -> tuple
     q = frames.euler_to_quaternion(est.phi, est.theta, est.psi)
     qd = frames.ned_quaternion_to_model(*sp.q)
     rate_sp = ac.attitude_to_rates(q, qd)
-    w = euler_rates_to_body(est.phi, est.theta, est.phi_rate, est.theta_rate, est.psi_rate)
+    w = body_rates(est.phi, est.theta, est.phi_rate, est.theta_rate, est.psi_rate)
     return ac.rates_to_torque(rate_sp, w, integrate=False)
 
 
@@ -42,8 +44,7 @@ def test_attitude_setpoint_delivers_the_commanded_torque_through_the_cascade() -
     worst = 0.0
     for _ in range(200):
         est = _state(*rng.uniform(-0.4, 0.4, 2), rng.uniform(-3, 3), *rng.uniform(-0.5, 0.5, 3))
-        tau = rng.uniform(-0.5, 0.5, 3) * np.array([v.roll_pitch_torque_max, v.roll_pitch_torque_max,
-                                                      v.yaw_torque_max])
+        tau = rng.uniform(-0.5, 0.5, 3) * np.array([v.roll_pitch_torque_max, v.roll_pitch_torque_max, v.yaw_torque_max])
         m = CommandMapper(v, MappingConfig(max_tilt=1.0, max_rate=10.0))
         sp = m.map(0.0, _cmd(v.hover_thrust, *tau), est)
         got = _realized_torque(v, est, sp)
@@ -78,14 +79,16 @@ def test_ardupilot_angle_boost_is_pre_compensated() -> None:
     est = _state(phi=0.3)
     px4 = CommandMapper(v).map(0.0, _cmd(v.hover_thrust), est)
     ap = CommandMapper(v, autopilot=AutopilotModel(flavour="ardupilot", angle_boost=True)).map(
-        0.0, _cmd(v.hover_thrust), est)
+        0.0, _cmd(v.hover_thrust), est
+    )
     assert ap.thrust == pytest.approx(px4.thrust * math.cos(0.3), rel=1e-9)
     # what ArduPilot does with it (throttle / cos(current tilt), the emulator's copy of it) gives back the thrust
-    from sim_bridge.airframe import angle_boost
+    from sim_bridge.inner.airframe import angle_boost
 
     assert angle_boost(ap.thrust, 0.3, 0.0) == pytest.approx(px4.thrust, rel=1e-9)
     off = CommandMapper(v, autopilot=AutopilotModel(flavour="ardupilot", angle_boost=False)).map(
-        0.0, _cmd(v.hover_thrust), est)
+        0.0, _cmd(v.hover_thrust), est
+    )
     assert off.thrust == pytest.approx(px4.thrust, rel=1e-12)
 
 
@@ -99,6 +102,21 @@ def test_actuator_output_normalizes_and_flips_to_frd() -> None:
     assert sp.thrust == pytest.approx(v.hover_thrust / v.thrust_max)
     sp = m.map(0.001, _cmd(1e6, 1e6, -1e6, 0.0), _state())
     assert sp.roll <= 1.0 and sp.pitch >= -1.0 and sp.thrust <= 0.98
+
+
+def test_actuator_output_normalizes_by_the_autopilots_unit_torque_when_known() -> None:
+    """PX4's allocator turns a unit normalized torque into the CA_ROTOR* geometry's torque (SIH: 1.36 / 1.36 /
+    0.256 N m for the paper vehicle's motors), not the vehicle file's hover-margin maximum; the mapping divides by
+    the allocator's, so the delivered torque is the commanded one, before and after set_autopilot."""
+    v = Vehicle()
+    unit = (1.36, 1.4, 0.256)
+    cmd = _cmd(v.hover_thrust, 0.5, 0.25, 0.05)
+    m = CommandMapper(v, MappingConfig(output="actuator"), AutopilotModel(unit_torque=unit))
+    sp = m.map(0.0, cmd, _state())
+    assert (sp.roll, sp.pitch, sp.yaw) == pytest.approx((0.5 / 1.36, -0.25 / 1.4, -0.05 / 0.256))
+    late = CommandMapper(v, MappingConfig(output="actuator"))
+    late.set_autopilot(AutopilotModel(unit_torque=unit))
+    assert late.map(0.0, cmd, _state()).roll == pytest.approx(sp.roll, rel=1e-12)
 
 
 def test_slew_limits_bound_the_change_per_tick() -> None:

@@ -11,15 +11,14 @@ from pathlib import Path
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
-from offboard.demo_cli import EmulatorThread, configure, free_udp_port
-from offboard.fly_cli import fly
-from offboard.link.mavsdk_backend import MAVSDK_SYSTEM_ID
+from offboard.flight.fly_cli import fly
+from offboard.flight.link.mavsdk_backend import MAVSDK_SYSTEM_ID
+from offboard.harness.demo_cli import EmulatorThread, configure, free_udp_port
 
 
 def test_mavsdk_backend_flies_the_emulator(tmp_path: Path) -> None:
     port = free_udp_port()
-    emu = EmulatorThread("px4", port, lockstep=True, period=0.004, vehicle=None, attitude_model="rigid",
-                         noise=0.0, loss=0.0, tlog=None).start()
+    emu = EmulatorThread("px4", port, lockstep=True, period=0.004).start()
     p = argparse.ArgumentParser()
     configure(p)
     args = p.parse_args(["--scenario", "hover", "--duration", "4", "--no-figures", "--out", str(tmp_path / "f")])
@@ -44,6 +43,9 @@ def test_mavsdk_backend_flies_the_emulator(tmp_path: Path) -> None:
         elif msg.get_type() == "SET_ATTITUDE_TARGET":
             sp_src.add(msg.get_srcSystem())
     assert cmd_src == {MAVSDK_SYSTEM_ID} and sp_src == {255}
+    # ... and the autopilot's answers to MAVSDK's commands are ours, not a foreign system's
+    sup = m["flight"]["supervision"]
+    assert sup["foreign_command_acks"] == 0, sup
     # MAVSDK set the take-off altitude (a parameter set it runs blocking: the backend must keep feeding it the
     # link meanwhile), so the autopilot's take-off climbed to the reference's 1 m, not to its 2.5 m default
     assert m["flight"]["warnings"] == []

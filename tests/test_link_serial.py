@@ -22,8 +22,8 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
-from offboard.demo_cli import EmulatorThread, configure, free_udp_port
-from offboard.fly_cli import fly
+from offboard.flight.fly_cli import fly
+from offboard.harness.demo_cli import EmulatorThread, configure, free_udp_port
 
 
 class Relay(threading.Thread):
@@ -107,15 +107,15 @@ def test_fly_over_a_serial_line_and_tcp(tmp_path: Path, kind: str, url: str) -> 
     port = free_udp_port()
     relay = PtyRelay(port) if kind == "serial" else TcpRelay(port)
     relay.start()
-    emu = EmulatorThread("px4", port, lockstep=True, period=0.004, vehicle=None, attitude_model="rigid",
-                         noise=0.0, loss=0.0, tlog=None).start()
+    emu = EmulatorThread("px4", port, lockstep=True, period=0.004).start()
     p = argparse.ArgumentParser()
     configure(p)
     args = p.parse_args(["--scenario", "hover", "--duration", "2", "--no-figures", "--out", str(tmp_path / "f")])
     args.connect, args.trajectory = url.format(relay.device), None
     try:
-        m, folder = fly(args, lockstep=True, truth_probe=emu.truth, quiet=True,
-                        on_reference_start=emu.set_reference_start)
+        m, folder = fly(
+            args, lockstep=True, truth_probe=emu.truth, quiet=True, on_reference_start=emu.set_reference_start
+        )
     finally:
         summary = emu.stop()
         relay.close()

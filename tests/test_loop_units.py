@@ -9,22 +9,29 @@ import socket
 import numpy as np
 import pytest
 
-from estimators import frames
-from estimators.control_state import ControlState
-from estimators.measurements import Attitude, PositionVelocity
-from estimators.vehicle import Vehicle
-from offboard import smc
-from offboard.command_mapping import AutopilotModel, CommandMapper, MappingConfig, euler_rates_to_body
-from offboard.link.connection import MavConnection, VehicleInfo
-from offboard.loop import FlightLoop, LoopConfig, LoopStats, _AbortError
-from offboard.scenarios import make_scenario
-from sim_bridge.airframe import AttitudeController, default_rate_gains
+from estimators.model import frames
+from estimators.model.control_state import ControlState
+from estimators.model.measurements import Attitude, PositionVelocity
+from estimators.model.rotations import body_rates
+from estimators.model.vehicle import Vehicle
+from offboard.control import smc
+from offboard.control.scenarios import make_scenario
+from offboard.flight.command_mapping import CommandMapper, MappingConfig
+from offboard.flight.link.autopilot_model import AutopilotModel
+from offboard.flight.link.connection import MavConnection, VehicleInfo
+from offboard.flight.loop import FlightLoop, LoopConfig, LoopStats, _AbortError
+from sim_bridge.inner.airframe import AttitudeController, default_rate_gains
 
 
 def test_config_limits() -> None:
     LoopConfig().validate()
-    for bad in (LoopConfig(rate_hz=10.0), LoopConfig(rate_hz=2000.0), LoopConfig(stale_s=0.0),
-                LoopConfig(end_action="crash"), LoopConfig(prime_s=0.5)):
+    for bad in (
+        LoopConfig(rate_hz=10.0),
+        LoopConfig(rate_hz=2000.0),
+        LoopConfig(stale_s=0.0),
+        LoopConfig(end_action="crash"),
+        LoopConfig(prime_s=0.5),
+    ):
         with pytest.raises(ValueError):
             bad.validate()
 
@@ -48,15 +55,24 @@ def loop() -> FlightLoop:
     conn.vehicle = VehicleInfo(1, 1, "px4", 2)
     v = Vehicle()
     sc = make_scenario("hover")
-    lp = FlightLoop(conn, v, sc.reference, 5.0, smc.ControllerParams.for_vehicle(v), CommandMapper(v), None,
-                    LoopConfig(stale_s=0.1, divergence_m=1.0, swing_limit_rad=0.5))
+    lp = FlightLoop(
+        conn,
+        v,
+        sc.reference,
+        5.0,
+        smc.ControllerParams.for_vehicle(v),
+        CommandMapper(v),
+        None,
+        LoopConfig(stale_s=0.1, divergence_m=1.0, swing_limit_rad=0.5),
+    )
     yield lp
     conn.close()
 
 
 def _est(x: float = 0.0, z: float = 1.0, ax: float = 0.0, ay: float = 0.0) -> ControlState:
-    return ControlState((x, 0.0, 0.0, 0.0, 0.0, 0.0), (0.0,) * 6, z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, ax, ay,
-                        0.0, 0.0)
+    return ControlState(
+        (x, 0.0, 0.0, 0.0, 0.0, 0.0), (0.0,) * 6, z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, ax, ay, 0.0, 0.0
+    )
 
 
 def test_staleness_watchdog_real_time_and_lockstep(loop: FlightLoop) -> None:
@@ -98,11 +114,13 @@ def test_rate_integrator_model_keeps_the_realized_torque_on_command() -> None:
     ratio = tuple(i / p for i, p in zip(g.i, g.p))
     tau = (0.05, -0.04, 0.02)
     est = ControlState((0.0,) * 6, (0.0,) * 6, 1.0, 0.0, 0.05, -0.03, 0.4, 0.1, 0.0, 0.2, 0.0, 0.0, 0.0, 0.0)
-    w = euler_rates_to_body(est.phi, est.theta, est.phi_rate, est.theta_rate, est.psi_rate)
+    w = body_rates(est.phi, est.theta, est.phi_rate, est.theta_rate, est.psi_rate)
     q = frames.euler_to_quaternion(est.phi, est.theta, est.psi)
     errors = {}
-    for name, model in (("with", AutopilotModel(rate_integral=ratio)),
-                        ("without", AutopilotModel(rate_integral=(0.0, 0.0, 0.0)))):
+    for name, model in (
+        ("with", AutopilotModel(rate_integral=ratio)),
+        ("without", AutopilotModel(rate_integral=(0.0, 0.0, 0.0))),
+    ):
         m = CommandMapper(v, MappingConfig(max_rate=10.0), model)
         ac = AttitudeController(v, 0.001)
         worst = 0.0
@@ -123,9 +141,12 @@ def test_flight_code_does_not_load_the_emulator() -> None:
     import subprocess
     import sys
 
-    code = ("import sys, offboard.loop, offboard.command_mapping, offboard.link.connection, offboard.link.telemetry, "
-            "offboard.link.setpoints, offboard.link.management, offboard.link.mavsdk_backend; "
-            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'sim_bridge'))")
+    code = (
+        "import sys, offboard.flight.loop, offboard.flight.command_mapping, offboard.flight.link.connection, "
+        "offboard.flight.link.telemetry, offboard.flight.link.setpoints, offboard.flight.link.management, "
+        "offboard.flight.link.mavsdk_backend; "
+        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'sim_bridge'))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
 
@@ -133,7 +154,7 @@ def test_flight_code_does_not_load_the_emulator() -> None:
 def test_actuator_lag_is_the_motors_first_order_response() -> None:
     """The command the filter is given: the first one as is, then a first-order lag with the motor time constant
     (exact per step, whatever the step), and a time constant of 0 passes commands through."""
-    from offboard.loop import ActuatorLag
+    from offboard.flight.loop import ActuatorLag
 
     lag = ActuatorLag(0.02)
     assert lag(1.0, 6.0, (0.1, -0.2, 0.0)) == (6.0, (0.1, -0.2, 0.0))
@@ -151,3 +172,34 @@ def test_actuator_lag_is_the_motors_first_order_response() -> None:
     assert ActuatorLag(0.0)(2.0, 3.0, (1.0, 2.0, 3.0)) == (3.0, (1.0, 2.0, 3.0))
     with pytest.raises(ValueError):
         ActuatorLag(math.nan)
+
+
+def test_start_criterion_is_sized_to_the_telemetry_s_scatter() -> None:
+    """The hold at the reference's start ends when the window mean is within two standard errors of the goal
+    (floors 1 cm / 3 cm/s): white noise averages down (the 1 cm floor decides), an estimate that wanders over
+    seconds does not, and its tolerance grows with its scatter; a vehicle really off the goal still fails."""
+    import random
+
+    from offboard.flight.start_checks import settled as _settled
+    from offboard.flight.start_checks import standard_error
+
+    rng = random.Random(1)
+    white = [rng.gauss(0.0, 0.02) for _ in range(300)]
+    assert standard_error(white) == pytest.approx(0.02 / math.sqrt(300), rel=0.3)
+    walk = [0.0]
+    for _ in range(299):
+        walk.append(0.995 * walk[-1] + rng.gauss(0.0, 0.02))
+    assert standard_error(walk) > 5.0 * standard_error(white)  # correlated samples count as few
+
+    def settled(xs: list[float], off: float) -> bool:
+        """Whether samples ``xs``, shifted so that the mean of the last 50 (the 0.5 s window) is ``off`` m from
+        the goal, pass; the 300 (3 s) give the standard error."""
+        shift = off - sum(xs[-50:]) / 50
+        w = [(0.01 * i, shift + x, 0.0, 2.0, 0.0, 0.0, 0.0) for i, x in enumerate(xs)]
+        return _settled(w[-50:], [], 0.0, 0.0, 2.0, True, False, w)
+
+    # white 2 cm noise: 5 mm off is settled, 3 cm off is not (the floor is 1 cm; the standard error ~1 mm)
+    assert settled(white, 0.005) and not settled(white, 0.03)
+    # a wandering estimate: its mean is known only to decimetres, so 5 cm off counts as there; far off does not
+    assert 2.0 * standard_error(walk) > 0.05
+    assert settled(walk, 0.05) and not settled(walk, 4.0 * standard_error(walk))

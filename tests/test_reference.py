@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from estimators.errors import UserError
-from offboard.jet import FACTORIALS, Jet, PolynomialTaylor, compose_series
-from offboard.reference import (
+from offboard.control.jet import FACTORIALS, Jet, PolynomialTaylor, compose_series
+from offboard.control.reference import (
     Composite,
     FlatSample,
     Mapped,
@@ -21,14 +21,10 @@ from offboard.reference import (
     SmoothStep,
     Sum,
     TrajectoryError,
-    circle,
-    figure_eight,
-    hover,
-    load_trajectory_file,
-    rest_to_rest,
-    smooth_step_value,
-    waypoints,
 )
+from offboard.control.reference_patterns import circle, figure_eight, hover, rest_to_rest, waypoints
+from offboard.control.smooth_step import smooth_step_value
+from offboard.control.trajectory_file import load_trajectory_file
 
 # --------------------------------------------------------------------------------------------------------------
 # the references under test (one per constructor, plus the scenario-style composition)
@@ -113,9 +109,9 @@ def test_smooth_step_polynomial_properties():
     assert smooth_step_value(0.25) + smooth_step_value(0.75) == pytest.approx(1.0, abs=1e-14)
     assert step.derivatives(0.5, 2)[1] == pytest.approx(math.comb(16, 8) * 8 / 2**16 * 2, rel=1e-12)  # 15!/(7!)^2/4^7
     # derivatives 1..7 vanish at both ends of the degree-15 polynomial; the 8th does not (so it is exactly C^7)
-    from offboard import reference as r
+    from offboard.control import smooth_step
 
-    poly = PolynomialTaylor(r._STEP.coefficients)
+    poly = PolynomialTaylor(smooth_step.STEP.coefficients)
     for x in (0.0, 1.0):
         d = [c * FACTORIALS[k] for k, c in enumerate(poly.taylor(x, 9))]
         assert d[0] == pytest.approx(x, abs=1e-9)

@@ -12,12 +12,13 @@ import numpy as np
 import pytest
 from tlog_fixtures import LogSpec, flight_log, offboard_log, write_live_table
 
-from offboard import replay as rp
 from offboard.cli import main
-from offboard.demo_cli import EmulatorThread, free_udp_port
-from offboard.fly_cli import configure as fly_configure
-from offboard.fly_cli import fly
-from offboard.tlog import TlogReader
+from offboard.flight.fly_cli import configure as fly_configure
+from offboard.flight.fly_cli import fly
+from offboard.harness.demo_cli import EmulatorThread, free_udp_port
+from offboard.logs import replay as rp
+from offboard.logs.estimate_columns import INNOVATION_COLUMNS, SIGMA_COLUMNS
+from offboard.logs.tlog import TlogReader
 
 
 def _replay_cli(tlog: Path, out: Path, *extra: str) -> tuple[int, dict]:
@@ -34,30 +35,56 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
 
 # ------------------------------------------------------------------------------------------ slung demo, exact ---
 
+
 @pytest.fixture(scope="module")
 def demo_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """Four short `slung demo` flights recorded for the replay: PX4 with attitude and with actuator output,
     ArduPilot (GUIDED, throttle with angle boost) with attitude output, all lockstep, and PX4 in real time (the
     loop's tick times then come from its clock, not from the emulator's markers)."""
     out = {}
-    for flavor, output, mode in (("px4", "attitude", "lockstep"), ("px4", "actuator", "lockstep"),
-                                 ("ardupilot", "attitude", "lockstep"), ("px4", "attitude", "realtime")):
+    for flavor, output, mode in (
+        ("px4", "attitude", "lockstep"),
+        ("px4", "actuator", "lockstep"),
+        ("ardupilot", "attitude", "lockstep"),
+        ("px4", "attitude", "realtime"),
+        ("px4", "attitude", "sih"),  # PX4 SITL's SIH vehicle, no load: --law auto flies the attitude-level law
+    ):
         name = f"{flavor}-{output}-{mode}"
         d = tmp_path_factory.mktemp(f"demo-{name}")
         # the exit code is not asserted: a flight a watchdog ended early (a loaded test machine) must replay
         # exactly too; the replay tests check that there was a flight at all
-        main(["demo", "--flavor", flavor, "--duration", "1.5", "--output", output, "--no-figures", "--out", str(d),
-              "--sensors", "ideal", "--disturbance", "none"]  # exact telemetry (the demo's default is px4-typical)
-             + (["--realtime"] if mode == "realtime" else []))
+        main(
+            [
+                "demo",
+                "--flavor",
+                flavor,
+                "--duration",
+                "1.5",
+                "--output",
+                output,
+                "--no-figures",
+                "--out",
+                str(d),
+                "--sensors",
+                "ideal",
+                "--disturbance",
+                "none",
+            ]  # exact telemetry (the demo's default is px4-typical)
+            + (["--realtime"] if mode == "realtime" else [])
+            + (["--vehicle", "px4-sih", "--scenario", "hover"] if mode == "sih" else [])
+        )
         assert (d / "flight.tlog").is_file() and (d / "timeseries_live.csv").is_file()
         out[name] = d
     return out
 
 
-@pytest.mark.parametrize("run_name", ["px4-attitude-lockstep", "px4-actuator-lockstep", "ardupilot-attitude-lockstep",
-                                      "px4-attitude-realtime"])
+@pytest.mark.parametrize(
+    "run_name",
+    ["px4-attitude-lockstep", "px4-actuator-lockstep", "ardupilot-attitude-lockstep", "px4-attitude-realtime"],
+)
 def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
-        demo_runs: dict[str, Path], run_name: str, tmp_path: Path) -> None:
+    demo_runs: dict[str, Path], run_name: str, tmp_path: Path
+) -> None:
     run = demo_runs[run_name]
     flavor, output, _ = run_name.split("-")
     code, m = _replay_cli(run / "flight.tlog", tmp_path / "r")
@@ -70,19 +97,55 @@ def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
     assert n >= 5 and len(rep["t"]) == n
     # the replay's own time series against the live loop's, column by column, bit for bit
     np.testing.assert_array_equal(rep["t"], live["t_vehicle"])
-    pairs = [("Fx", "est_fx0"), ("Fx_d5", "est_fx5"), ("Fy_d3", "est_fy3"), ("z", "est_z"), ("psi", "est_psi"),
-             ("alpha_x", "est_alpha_x"), ("alpha_y_rate", "est_alpha_y_rate"), ("cmd_thrust", "cmd_thrust"),
-             ("cmd_tau_theta", "cmd_tau_theta")]
-    sp_names = ("q_w", "q_x", "q_y", "q_z", "roll_rate", "pitch_rate", "yaw_rate", "thrust") \
-        if output == "attitude" else ("roll", "pitch", "yaw", "thrust")
+    pairs = [
+        ("Fx", "est_fx0"),
+        ("Fx_d5", "est_fx5"),
+        ("Fy_d3", "est_fy3"),
+        ("z", "est_z"),
+        ("psi", "est_psi"),
+        ("alpha_x", "est_alpha_x"),
+        ("alpha_y_rate", "est_alpha_y_rate"),
+        ("cmd_thrust", "cmd_thrust"),
+        ("cmd_tau_theta", "cmd_tau_theta"),
+    ]
+    sp_names = (
+        ("q_w", "q_x", "q_y", "q_z", "roll_rate", "pitch_rate", "yaw_rate", "thrust")
+        if output == "attitude"
+        else ("roll", "pitch", "yaw", "thrust")
+    )
     pairs += [("sp_" + name, f"sp{i}") for i, name in enumerate(sp_names)]
+    # the loop read the filter's standard deviations and innovations after every tick, the replay reads them too:
+    # the reads changed nothing (the estimates above are bit-identical) and they are themselves reproduced exactly
+    pairs += [(name, name) for name in (*SIGMA_COLUMNS, *INNOVATION_COLUMNS)]
     for a, b in pairs:
         np.testing.assert_array_equal(rep[a], live[b], err_msg=f"{a} vs {b}")
+    assert np.all(live["sd_fx0"] > 0.0) and np.all(np.isfinite(live["sd_alpha_x"]))
+    for stream in ("nu_pos", "nu_tilt"):  # from the stream's first fused record on, every tick has its innovation
+        nu = live[stream]
+        assert np.isfinite(nu).any() and np.isfinite(nu[int(np.argmax(np.isfinite(nu))) :]).all(), stream
     assert m["live_agreement"]["estimate_identical"] == n
     assert m["live_agreement"]["setpoint_identical"] == n
     # what went over the wire (float32) is what the replay recomputes, rounded to float32
     assert m["setpoint_agreement"]["float32_identical"] == m["setpoint_agreement"]["ticks_compared"] == n
     assert m["log"]["has_offboard_segment"] and m["log"]["autopilot"] == flavor
+
+
+def test_replay_reproduces_an_attitude_level_law_flight(demo_runs: dict[str, Path], tmp_path: Path) -> None:
+    """A flight of the attitude-level law (offboard.control.smc_attitude) replays with that law, bit for bit: its gains
+    re-derived from the autopilot model the run logged, as the live loop derived them."""
+    run = demo_runs["px4-attitude-sih"]
+    live_m = json.loads((run / "metrics.json").read_text())
+    assert live_m["config"]["law"] == "attitude"
+    code, m = _replay_cli(run / "flight.tlog", tmp_path / "r", "--vehicle", "px4-sih")
+    assert code == 0
+    live = _csv_columns(run / "timeseries_live.csv")
+    rep = _csv_columns(tmp_path / "r" / "timeseries.csv")
+    n = len(live["t_vehicle"])
+    assert n >= 5 and len(rep["t"]) == n
+    for a, b in (("cmd_thrust", "cmd_thrust"), ("sp_q_x", "sp1"), ("sp_q_y", "sp2"), ("sp_thrust", "sp7")):
+        np.testing.assert_array_equal(rep[a], live[b], err_msg=f"{a} vs {b}")
+    assert m["live_agreement"]["setpoint_identical"] == n
+    assert m["setpoint_agreement"]["float32_identical"] == n
 
 
 def test_replay_of_slung_demo_from_the_tlog_alone(demo_runs: dict[str, Path], tmp_path: Path) -> None:
@@ -102,15 +165,22 @@ def test_replay_of_slung_demo_from_the_tlog_alone(demo_runs: dict[str, Path], tm
 def test_estimate_only_over_a_whole_demo_log(demo_runs: dict[str, Path], tmp_path: Path) -> None:
     """The estimator alone over the whole log (take-off and approach included, commands unknown): it runs while
     the emulator reports the vehicle in the air and agrees with the autopilot's position."""
-    code, m = _replay_cli(demo_runs["px4-attitude-lockstep"] / "flight.tlog", tmp_path / "r", "--estimate-only",
-                          "--no-figures")
+    code, m = _replay_cli(
+        demo_runs["px4-attitude-lockstep"] / "flight.tlog", tmp_path / "r", "--estimate-only", "--no-figures"
+    )
     assert code == 0 and m["estimation"]["airborne_only"]
     assert m["estimation"]["height_vs_autopilot_m"]["rms"] < 0.01
     assert m["estimation"]["position_vs_autopilot_m"]["rms"] < 0.01
     assert m["estimation"]["alpha_x_vs_sensor"]["rms"] < 0.01
+    # the payload reports as its own system (as ArduPilot's slung-payload SITL does): the swing against that truth,
+    # which is only as good as the vehicle's own GLOBAL_POSITION_INT (the emulator's EKF error / cable length)
+    truth = m["estimation"]["swing_vs_truth"]
+    assert m["log"]["load_sysid"] == 2 and truth["ticks"] > 100 and truth["truth_swing_max_rad"] is not None
+    assert truth["alpha_x"]["rms"] < 0.2 and truth["alpha_y"]["rms"] < 0.2
 
 
 # --------------------------------------------------------------------------------- generated offboard flights ---
+
 
 @pytest.mark.parametrize("output", ["attitude", "actuator"])
 def test_generated_offboard_flight_is_reproduced_with_and_without_its_tick_log(output: str, tmp_path: Path) -> None:
@@ -123,7 +193,7 @@ def test_generated_offboard_flight_is_reproduced_with_and_without_its_tick_log(o
     ref = rp.ReferenceSpec("hover")
     for cfg in (rp.ReplayConfig(reference=ref, live=live), rp.ReplayConfig(reference=ref)):
         res = rp.replay(sc, inv, cfg)
-        est = res.data[:, res.columns.index("Fx"):res.columns.index("Fx") + 24]
+        est = res.data[:, res.columns.index("Fx") : res.columns.index("Fx") + 24]
         np.testing.assert_array_equal(est, np.array([r[3:27] for r in live_rows]))
         ag = res.metrics["setpoint_agreement"]
         assert ag["float32_identical"] == ag["ticks_compared"] == len(live_rows)
@@ -171,12 +241,15 @@ def test_damaged_offboard_log_still_replays(tmp_path: Path) -> None:
 
 # ------------------------------------------------------------------------------------ inventory and reports ---
 
+
 def test_inventory_of_a_clean_log() -> None:
     sc = rp.scan(TlogReader(flight_log(LogSpec(seconds=2.0))))
     inv = rp.inventory(sc)
     assert inv["autopilot"] == "px4" and inv["vehicle_type"] == "quadrotor" and inv["autopilot_sysid"] == 1
     assert inv["has_load_sensor"] and inv["has_local_position"] and inv["has_imu"]
-    assert inv["missing"] == []
+    # the only thing missing: EXTENDED_SYS_STATE (airborne is then judged by height above where it armed)
+    assert len(inv["missing"]) == 1 and inv["missing"][0].startswith("no EXTENDED_SYS_STATE")
+    assert inv["flew"] and len(inv["airborne_segments"]) == 1
     rates = inv["systems"][0]["rates_hz"]
     assert rates["ATTITUDE"] == pytest.approx(250.0, rel=0.01)
     assert rates["LOCAL_POSITION_NED"] == pytest.approx(50.0, rel=0.02)
@@ -213,12 +286,16 @@ def test_sensorless_swing_estimate_follows_the_sensor_it_ignores(tmp_path: Path)
     assert m["estimation"]["alpha_y_vs_sensor"]["rms"] < 0.02
 
 
-@pytest.mark.parametrize(("spec", "reason"), [
-    (LogSpec(seconds=1.0, mav_type=1), "not a multirotor"),
-    (LogSpec(seconds=1.0, local_position=False), "no local position"),
-])
-def test_unusable_logs_get_a_report_and_exit_code_3(spec: LogSpec, reason: str, tmp_path: Path,
-                                                    capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize(
+    ("spec", "reason"),
+    [
+        (LogSpec(seconds=1.0, mav_type=1), "not a multirotor"),
+        (LogSpec(seconds=1.0, local_position=False), "no local position"),
+    ],
+)
+def test_unusable_logs_get_a_report_and_exit_code_3(
+    spec: LogSpec, reason: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     path = tmp_path / "x.tlog"
     path.write_bytes(flight_log(spec))
     code, m = _replay_cli(path, tmp_path / "r")
@@ -256,8 +333,9 @@ def test_offboard_modes_of_both_autopilots() -> None:
 
 
 @pytest.mark.parametrize("content", [b"", b"time,x\n1,2\n" * 40, bytes(range(256)) * 8])
-def test_empty_or_non_tlog_file_is_a_one_line_error(content: bytes, tmp_path: Path,
-                                                    capsys: pytest.CaptureFixture[str]) -> None:
+def test_empty_or_non_tlog_file_is_a_one_line_error(
+    content: bytes, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     path = tmp_path / "x.tlog"
     path.write_bytes(content)
     assert main(["replay", str(path), "--out", str(tmp_path / "r")]) == 2
@@ -274,7 +352,7 @@ def test_missing_file_and_bad_window_are_usage_errors(tmp_path: Path, capsys: py
 
 
 def test_progress_bar_draws_on_stderr(capsys: pytest.CaptureFixture[str]) -> None:
-    from offboard.replay_cli import _progress_bar
+    from offboard.logs.replay_cli import _progress_bar
 
     bar = _progress_bar()
     for f in (0.0, 0.5, 0.5, 1.0):
@@ -307,19 +385,22 @@ def test_replay_of_a_trajectory_file_flight_uses_the_file_the_run_recorded(tmp_p
     """`slung fly --trajectory FILE` records the file's path in metrics.json; the replay finds the reference there
     (no --trajectory needed) and recomputes the flight's setpoints exactly."""
     traj = tmp_path / "hop.toml"
-    traj.write_text("[[waypoint]]\nt = 0.0\nx = 0.0\ny = 0.0\nz = 1.0\n"
-                    "[[waypoint]]\nt = 3.0\nx = 0.3\ny = 0.1\nz = 1.1\n", encoding="utf-8")
+    traj.write_text(
+        "[[waypoint]]\nt = 0.0\nx = 0.0\ny = 0.0\nz = 1.0\n[[waypoint]]\nt = 3.0\nx = 0.3\ny = 0.1\nz = 1.1\n",
+        encoding="utf-8",
+    )
     port = free_udp_port()
-    emu = EmulatorThread("px4", port, lockstep=True, period=0.004, vehicle=None, attitude_model="rigid",
-                         noise=0.0, loss=0.0, tlog=None).start()
+    emu = EmulatorThread("px4", port, lockstep=True, period=0.004).start()
     p = argparse.ArgumentParser()
     fly_configure(p)
     out = tmp_path / "flight"
-    args = p.parse_args(["--connect", f"udpin:127.0.0.1:{port}", "--trajectory", str(traj),
-                         "--no-figures", "--out", str(out)])
+    args = p.parse_args(
+        ["--connect", f"udpin:127.0.0.1:{port}", "--trajectory", str(traj), "--no-figures", "--out", str(out)]
+    )
     try:
-        m, folder = fly(args, lockstep=True, truth_probe=emu.truth, quiet=True,
-                        on_reference_start=emu.set_reference_start)
+        m, folder = fly(
+            args, lockstep=True, truth_probe=emu.truth, quiet=True, on_reference_start=emu.set_reference_start
+        )
     finally:
         emu.stop()
     assert m["flight"]["ended_by"] == "completed"

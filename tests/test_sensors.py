@@ -7,12 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from estimators.cable import cable_from_planar, planar_swing
 from estimators.errors import UserError
-from estimators.measurements import Attitude, Imu, LoadAngle, PositionVelocity, is_finite
-from estimators.vehicle import Vehicle
-from sim_bridge import dynamics
-from sim_bridge.sensors import PRESETS, SensorSuite, body_rates, preset_spec, specific_force_body
+from estimators.model.cable import cable_from_planar, planar_swing
+from estimators.model.measurements import Attitude, Imu, LoadAngle, PositionVelocity, is_finite
+from estimators.model.rotations import body_rates
+from estimators.model.vehicle import Vehicle
+from sim_bridge.plant import dynamics
+from sim_bridge.plant.sensors import PRESETS, SensorSuite, preset_spec, specific_force_body
 
 V = Vehicle()
 P = dynamics.plant_params(V)

@@ -9,12 +9,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from estimators.vehicle import Vehicle
-from offboard import metrics as metrics_mod
-from offboard import sim as sim_mod
-from offboard import smc
+from estimators.model.vehicle import Vehicle
 from offboard.cli import main
-from offboard.scenarios import make_scenario
+from offboard.control import smc
+from offboard.control.scenarios import make_scenario
+from offboard.harness import sim as sim_mod
+from offboard.report import metrics as metrics_mod
 
 
 def _run(vehicle: Vehicle, actuators: str, switching: str, duration: float = 12.0) -> tuple[dict, sim_mod.SimLog]:
@@ -29,7 +29,7 @@ def test_an_unlimited_instant_mixer_is_the_ideal_actuator() -> None:
     """Motors that never saturate and have no lag reproduce the commanded wrench (to rounding, which the switching
     amplifies to a few urad): the mixer is wired with the right signs and geometry. Smooth switching, so that no
     command asks a motor for negative thrust (which even unlimited motors cannot give)."""
-    big = dataclasses.replace(Vehicle(), motor_thrust_max=1e4, motor_time_constant=0.0)
+    big = dataclasses.replace(Vehicle(), motor_thrust_max=2000.0, motor_time_constant=0.0)
     _, ideal = _run(big, "ideal", "smooth")
     _, mixed = _run(big, "mixer", "smooth")
     for c in ("x", "y", "z", "phi", "theta", "psi", "alpha_x", "alpha_y"):
@@ -50,11 +50,54 @@ def test_the_paper_vehicles_mixer_starves_yaw_during_the_heading_manoeuvre() -> 
 
 
 def test_cli_option_and_bad_value(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["sim", "--scenario", "hover", "--duration", "1", "--actuators", "mixer", "--no-figures",
-                 "--out", str(tmp_path / "s")]) == 0
+    assert (
+        main(
+            [
+                "sim",
+                "--scenario",
+                "hover",
+                "--duration",
+                "1",
+                "--actuators",
+                "mixer",
+                "--no-figures",
+                "--out",
+                str(tmp_path / "s"),
+            ]
+        )
+        == 0
+    )
     assert '"actuators": "mixer"' in (tmp_path / "s" / "metrics.json").read_text()
     with pytest.raises(SystemExit) as exc:
         main(["sim", "--scenario", "hover", "--actuators", "motors", "--out", str(tmp_path / "t")])
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "--actuators" in err and "Traceback" not in err
+
+
+def test_px4_actuator_path_delivers_the_commanded_torque_and_agrees_with_the_flight_sides_unit_torque() -> None:
+    """``--actuators px4``: a torque well inside the motors' range comes out of PX4's allocator and the lagged
+    motors as commanded, and the allocator's unit torque (the emulator's side) is the one the flight side derives
+    from the CA_ROTOR* parameters (``offboard.flight.px4_allocation.unit_torques``)."""
+    from offboard.flight.px4_allocation import Rotor, unit_torques
+    from sim_bridge.inner.px4_inner import QUAD_X, Px4ActuatorPath
+
+    v = Vehicle()
+    path = Px4ActuatorPath(v, 0.001)
+    flight = unit_torques([Rotor(r.px, r.py, r.ct, r.km) for r in QUAD_X], v)
+    assert path.unit_torque == pytest.approx(flight, rel=1e-6)
+    path.reset(0.25 * v.hover_thrust)
+    path.allocate(v.hover_thrust, 0.1, -0.05, 0.02)
+    for _ in range(500):  # 10 motor time constants
+        w = path.step()
+    assert w == pytest.approx((v.hover_thrust, 0.1, -0.05, 0.02), abs=1e-6)
+    # saturation: PX4 keeps the roll torque and lowers the collective (airmode off), never raises it
+    path.allocate(v.thrust_max, 5.0, 0.0, 0.0)
+    for _ in range(500):
+        w = path.step()
+    assert w[0] < v.thrust_max - 1.0 and w[1] > 0.5
+
+
+def test_sim_runs_through_px4s_allocator() -> None:
+    m, _ = _run(Vehicle(), "px4", "sign", duration=6.0)
+    assert m["completed"] and m["all_finite"] and m["rms"]["e_z"] < 0.05

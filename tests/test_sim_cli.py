@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from offboard.cli import main
-from offboard.metrics import PAPER_TABLE2
+from offboard.report.metrics import PAPER_TABLE2
 
 
 def _slung() -> list[str]:
@@ -59,8 +59,16 @@ def test_paper_scenario_beats_table2_and_writes_the_report(paper_sign: tuple[Pat
     ts = np.genfromtxt(out / "timeseries.csv", delimiter=",", names=True)
     assert ts["t"][-1] == pytest.approx(50.0) and np.all(np.isfinite(ts["alpha"]))
     assert abs(ts["Fx_ref"]).max() == pytest.approx(0.75, abs=0.01)  # figure-eight 1.5 m wide
-    for fig in ("fig05_tracking", "fig06_yaw_start", "fig07_disturbances", "fig08_swing", "fig09_errors",
-                "fig10_attitude", "fig11_controls", "fig12_path3d"):
+    for fig in (
+        "fig05_tracking",
+        "fig06_yaw_start",
+        "fig07_disturbances",
+        "fig08_swing",
+        "fig09_errors",
+        "fig10_attitude",
+        "fig11_controls",
+        "fig12_path3d",
+    ):
         png = out / f"{fig}.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", fig
     assert not list(out.glob(".*.tmp"))  # atomic writes leave no temporaries
@@ -99,8 +107,23 @@ def test_same_seed_same_result_other_seed_other_disturbance(tmp_path: Path) -> N
     runs = []
     for i, seed in enumerate((3, 3, 4)):
         out = tmp_path / str(i)
-        assert main(["sim", "--scenario", "paper", "--duration", "27", "--seed", str(seed), "--no-figures",
-                     "--out", str(out)]) == 0
+        assert (
+            main(
+                [
+                    "sim",
+                    "--scenario",
+                    "paper",
+                    "--duration",
+                    "27",
+                    "--seed",
+                    str(seed),
+                    "--no-figures",
+                    "--out",
+                    str(out),
+                ]
+            )
+            == 0
+        )
         runs.append(json.loads((out / "metrics.json").read_text()))
     assert runs[0]["rms"] == runs[1]["rms"]
     assert runs[0]["rms"]["e_Fx"] != runs[2]["rms"]["e_Fx"]
@@ -120,8 +143,9 @@ def test_same_seed_same_result_other_seed_other_disturbance(tmp_path: Path) -> N
     ],
 )
 def test_bad_input_gives_one_line_and_exit_2(tmp_path: Path, args: list[str], needle: str) -> None:
-    proc = subprocess.run([*_slung(), "sim", *args, "--out", str(tmp_path / "o")], capture_output=True, text=True,
-                          timeout=60)
+    proc = subprocess.run(
+        [*_slung(), "sim", *args, "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=60
+    )
     assert proc.returncode == 2
     err = proc.stderr.strip()
     assert needle in err
@@ -131,39 +155,56 @@ def test_bad_input_gives_one_line_and_exit_2(tmp_path: Path, args: list[str], ne
 def test_unwritable_output_folder(tmp_path: Path) -> None:
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
-    proc = subprocess.run([*_slung(), "sim", "--scenario", "hover", "--out", str(blocker / "sub")],
-                          capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [*_slung(), "sim", "--scenario", "hover", "--out", str(blocker / "sub")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and "output folder" in proc.stderr
     if os.geteuid() != 0:  # root ignores permission bits; the blocker case above covers it
         ro = tmp_path / "ro"
         ro.mkdir(mode=0o500)
-        proc = subprocess.run([*_slung(), "sim", "--scenario", "hover", "--out", str(ro)], capture_output=True,
-                              text=True, timeout=60)
+        proc = subprocess.run(
+            [*_slung(), "sim", "--scenario", "hover", "--out", str(ro)], capture_output=True, text=True, timeout=60
+        )
         assert proc.returncode == 2 and "not writable" in proc.stderr
 
 
 def test_bad_vehicle_file(tmp_path: Path) -> None:
     bad = tmp_path / "v.toml"
     bad.write_text("[vehicle]\nmass_kg = -1\n")
-    proc = subprocess.run([*_slung(), "sim", "--scenario", "hover", "--vehicle", str(bad), "--out",
-                           str(tmp_path / "o")], capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [*_slung(), "sim", "--scenario", "hover", "--vehicle", str(bad), "--out", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 2 and "mass_vehicle" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_slack_cable_is_detected_and_reported(caplog: pytest.LogCaptureFixture) -> None:
     """Throw the load upward with no thrust: the tension drops to zero and the run says so."""
-    from estimators.vehicle import Vehicle
-    from offboard import metrics as metrics_mod
-    from offboard import reference, sim, smc
-    from sim_bridge import dynamics
+    from estimators.model.vehicle import Vehicle
+    from offboard.control import reference_patterns as patterns
+    from offboard.control import smc
+    from offboard.harness import sim
+    from offboard.report import metrics as metrics_mod
+    from sim_bridge.plant import dynamics
 
     v = Vehicle()
     gains = smc.Gains.from_poles()
     params = smc.ControllerParams(vehicle=v, gains=gains, thrust_min=0.0, thrust_max=0.0)  # motors off
-    sc = sim.Scenario("drop", "free fall, load thrown up", 0.5, reference.hover(0.0, 0.0, 10.0),
-                      dynamics.make_state(position=(0, 0, 10), velocity=(0, 0, 0), cable=(0.0, 0.0, -1.0),
-                                          cable_rate=(0.0, 0.0, 0.0)))
+    sc = sim.Scenario(
+        "drop",
+        "free fall, load thrown up",
+        0.5,
+        patterns.hover(0.0, 0.0, 10.0),
+        dynamics.make_state(
+            position=(0, 0, 10), velocity=(0, 0, 0), cable=(0.0, 0.0, -1.0), cable_rate=(0.0, 0.0, 0.0)
+        ),
+    )
     with caplog.at_level("WARNING"):
         log = sim.run(sc, v, params, sim.SimConfig())
     m = metrics_mod.compute(log)
@@ -174,14 +215,15 @@ def test_slack_cable_is_detected_and_reported(caplog: pytest.LogCaptureFixture) 
 
 
 def test_named_scenarios_are_plant_free_and_the_harness_builds_their_plant_side() -> None:
-    """offboard.scenarios gives the reference part and plain numbers only; offboard.sim.plant_scenario builds the
-    plant state and the paper disturbances from them (seeded, onset at the scenario's disturbance start), and a
-    scenario with neither a state nor a setup is refused."""
-    from estimators.cable import cable_from_spherical
-    from offboard import reference, sim
-    from offboard.scenarios import PAPER_DISTURBANCE_START_S, SCENARIOS, make_scenario
-    from sim_bridge import dynamics
-    from sim_bridge.disturbances import DisturbanceSpec, RandomDisturbance
+    """offboard.control.scenarios gives the reference part and plain numbers only; offboard.harness.sim.plant_scenario
+    builds the plant state and the paper disturbances from them (seeded, onset at the scenario's disturbance start), and
+    a scenario with neither a state nor a setup is refused."""
+    from estimators.model.cable import cable_from_spherical
+    from offboard.control import reference_patterns as patterns
+    from offboard.control.scenarios import PAPER_DISTURBANCE_START_S, SCENARIOS, make_scenario
+    from offboard.harness import sim
+    from sim_bridge.plant import dynamics
+    from sim_bridge.plant.disturbances import DisturbanceSpec, RandomDisturbance
 
     for name in SCENARIOS:
         sc = make_scenario(name, seed=4)
@@ -196,7 +238,19 @@ def test_named_scenarios_are_plant_free_and_the_harness_builds_their_plant_side(
     r, rd = cable_from_spherical(0.2, 0.5, 0.0, 0.3)
     assert hover.disturbance is None
     assert hover.initial_state == dynamics.make_state(position=(0.0, 0.0, 1.0), cable=r, cable_rate=rd)
-    given = sim.Scenario("given", "", 1.0, reference.hover(0.0, 0.0, 1.0), [0.0] * 14 + [-1.0, 0.0, 0.0, 0.0])
+    given = sim.Scenario("given", "", 1.0, patterns.hover(0.0, 0.0, 1.0), [0.0] * 14 + [-1.0, 0.0, 0.0, 0.0])
     assert sim.plant_scenario(given) is given  # an explicit plant state is used as it is
     with pytest.raises(ValueError, match="no initial plant state"):
-        sim.plant_scenario(sim.Scenario("bare", "", 1.0, reference.hover(0.0, 0.0, 1.0)))
+        sim.plant_scenario(sim.Scenario("bare", "", 1.0, patterns.hover(0.0, 0.0, 1.0)))
+
+
+def test_a_vehicle_without_a_load_never_reports_a_slack_cable(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """px4-sih carries no load (m = 0): the cable's tension is 0 by definition, which is not a slack cable; the run
+    used to warn of 10 000 slack plant steps (and its table said the rigid-cable model did not hold)."""
+    out = tmp_path / "noload"
+    assert main(["sim", "--vehicle", "px4-sih", "--scenario", "hover", "--no-figures", "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["cable"]["slack_steps"] == 0, m["cable"]
+    assert "slack" not in capsys.readouterr().out

@@ -28,8 +28,9 @@ psi_deg = 60
 HOP = "[[waypoint]]\nt = 0.0\nx = 0.0\ny = 0.0\nz = 1.0\n[[waypoint]]\nt = 1.5\nx = 0.3\ny = 0.1\nz = 1.1\n"
 
 
-def test_a_trajectory_file_is_simulated_from_rest_at_its_start(tmp_path: Path,
-                                                               capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_trajectory_file_is_simulated_from_rest_at_its_start(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     traj = tmp_path / "turn.toml"
     traj.write_text(TURN, encoding="utf-8")
     assert main(["sim", "--trajectory", str(traj), "--no-figures", "--out", str(tmp_path / "s")]) == 0
@@ -40,8 +41,9 @@ def test_a_trajectory_file_is_simulated_from_rest_at_its_start(tmp_path: Path,
     assert "feasibility check" not in capsys.readouterr().err  # a gentle move: nothing to warn about
 
 
-def test_an_infeasible_trajectory_is_simulated_with_the_checks_findings(tmp_path: Path,
-                                                                        capsys: pytest.CaptureFixture[str]) -> None:
+def test_an_infeasible_trajectory_is_simulated_with_the_checks_findings(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     traj = tmp_path / "hop.toml"
     traj.write_text(HOP, encoding="utf-8")
     assert main(["sim", "--trajectory", str(traj), "--no-figures", "--out", str(tmp_path / "s")]) == 0
@@ -52,7 +54,8 @@ def test_an_infeasible_trajectory_is_simulated_with_the_checks_findings(tmp_path
 
 
 def test_scenario_and_trajectory_are_exclusive_and_a_missing_file_is_one_line(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     with pytest.raises(SystemExit) as exc:
         main(["sim", "--scenario", "hover", "--trajectory", "x.toml", "--out", str(tmp_path / "a")])
     assert exc.value.code == 2

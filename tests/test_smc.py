@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from estimators.control_state import ControlState
-from estimators.vehicle import Vehicle
-from offboard import smc
-from offboard.sim import truth_control_state
-from sim_bridge import dynamics
+from estimators.model.control_state import ControlState
+from estimators.model.vehicle import Vehicle
+from offboard.control import smc
+from offboard.harness.sim import truth_control_state
+from sim_bridge.plant import dynamics
 
 VEHICLE = Vehicle()
 ZERO7 = (0.0,) * 7
@@ -37,9 +37,20 @@ def test_gains_place_the_triple_pole_pair_of_the_paper() -> None:
 
 def _hover_state(**kw: float) -> ControlState:
     base = {
-        "fx": (0.0,) * 6, "fy": (0.0,) * 6, "z": 1.0, "z_rate": 0.0, "phi": 0.0, "theta": 0.0, "psi": 0.0,
-        "phi_rate": 0.0, "theta_rate": 0.0, "psi_rate": 0.0, "alpha_x": 0.0, "alpha_y": 0.0,
-        "alpha_x_rate": 0.0, "alpha_y_rate": 0.0,
+        "fx": (0.0,) * 6,
+        "fy": (0.0,) * 6,
+        "z": 1.0,
+        "z_rate": 0.0,
+        "phi": 0.0,
+        "theta": 0.0,
+        "psi": 0.0,
+        "phi_rate": 0.0,
+        "theta_rate": 0.0,
+        "psi_rate": 0.0,
+        "alpha_x": 0.0,
+        "alpha_y": 0.0,
+        "alpha_x_rate": 0.0,
+        "alpha_y_rate": 0.0,
     }
     base.update(kw)
     return ControlState(**base)  # type: ignore[arg-type]
@@ -47,19 +58,23 @@ def _hover_state(**kw: float) -> ControlState:
 
 def test_hover_command_and_restoring_signs() -> None:
     params = smc.ControllerParams.for_vehicle(VEHICLE, switching="smooth")
-    cmd, _ = smc.step(0.0, _hover_state(), hold(0.0), hold(0.0), hold(1.0), ZERO7, smc.ControllerMemory(), params)
+
+    def at_hover_reference(**state: object) -> smc.Command:
+        """The first command for the state ``_hover_state(**state)`` against a hover at 1 m."""
+        est = _hover_state(**state)
+        return smc.step(0.0, est, hold(0.0), hold(0.0), hold(1.0), ZERO7, smc.ControllerMemory(), params)[0]
+
+    cmd = at_hover_reference()
     assert cmd.thrust == pytest.approx(VEHICLE.hover_thrust, rel=1e-12)
     assert (cmd.tau_phi, cmd.tau_theta, cmd.tau_psi) == pytest.approx((0.0, 0.0, 0.0), abs=1e-12)
     # errata E10: positive e_Fx -> tau_theta < 0 (tilt toward -x); positive e_Fy -> tau_phi > 0 (tilt toward -y)
-    cx, _ = smc.step(0.0, _hover_state(fx=(0.05, 0, 0, 0, 0, 0)), hold(0.0), hold(0.0), hold(1.0), ZERO7,
-                     smc.ControllerMemory(), params)
-    cy, _ = smc.step(0.0, _hover_state(fy=(0.05, 0, 0, 0, 0, 0)), hold(0.0), hold(0.0), hold(1.0), ZERO7,
-                     smc.ControllerMemory(), params)
+    cx = at_hover_reference(fx=(0.05, 0, 0, 0, 0, 0))
+    cy = at_hover_reference(fy=(0.05, 0, 0, 0, 0, 0))
     assert cx.tau_theta < 0.0 and abs(cx.tau_phi) < 1e-12
     assert cy.tau_phi > 0.0 and abs(cy.tau_theta) < 1e-12
     # too low -> more thrust; yaw left of the reference -> negative yaw torque
-    cz, _ = smc.step(0.0, _hover_state(z=0.9), hold(0.0), hold(0.0), hold(1.0), ZERO7, smc.ControllerMemory(), params)
-    cp, _ = smc.step(0.0, _hover_state(psi=0.1), hold(0.0), hold(0.0), hold(1.0), ZERO7, smc.ControllerMemory(), params)
+    cz = at_hover_reference(z=0.9)
+    cp = at_hover_reference(psi=0.1)
     assert cz.thrust > VEHICLE.hover_thrust
     assert cp.tau_psi < 0.0
 
@@ -91,7 +106,7 @@ def _closed_loop_error(psi0: float, offset: tuple[float, float], duration: float
     params = smc.ControllerParams(vehicle=VEHICLE, gains=gains, switching="smooth")
     p = dynamics.plant_params(VEHICLE)
     x = dynamics.make_state(position=(offset[0], offset[1], 1.0), euler=(0.0, 0.0, psi0))
-    from estimators.flatness import flat_constants
+    from estimators.model.flatness import flat_constants
 
     k = flat_constants(VEHICLE)
     mem = smc.ControllerMemory()
@@ -147,8 +162,16 @@ def test_non_finite_inputs_give_the_hover_command_never_nan() -> None:
 
 def test_commands_are_saturated_to_the_vehicle_limits() -> None:
     params = smc.ControllerParams.for_vehicle(VEHICLE)
-    cmd, _ = smc.step(0.0, _hover_state(fx=(50.0, 0, 0, 0, 0, 0), fy=(-50.0, 0, 0, 0, 0, 0), z=-100.0, psi=2.0),
-                      hold(0.0), hold(0.0), hold(1.0), ZERO7, smc.ControllerMemory(), params)
+    cmd, _ = smc.step(
+        0.0,
+        _hover_state(fx=(50.0, 0, 0, 0, 0, 0), fy=(-50.0, 0, 0, 0, 0, 0), z=-100.0, psi=2.0),
+        hold(0.0),
+        hold(0.0),
+        hold(1.0),
+        ZERO7,
+        smc.ControllerMemory(),
+        params,
+    )
     assert cmd.saturated
     assert 0.0 <= cmd.thrust <= VEHICLE.thrust_max
     assert cmd.thrust == pytest.approx(VEHICLE.thrust_max)

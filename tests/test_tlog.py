@@ -12,7 +12,7 @@ import pytest
 from pymavlink import mavutil
 from tlog_fixtures import LogSpec, flight_log
 
-from offboard.tlog import TlogReader, encode_record
+from offboard.logs.tlog import TlogReader, encode_record
 
 
 @pytest.fixture(scope="module")
@@ -25,10 +25,10 @@ def _records(data: bytes) -> list[tuple[int, bytes]]:
     out = []
     i = 0
     while i < len(data):
-        ts = struct.unpack(">Q", data[i:i + 8])[0]
+        ts = struct.unpack(">Q", data[i : i + 8])[0]
         stx = data[i + 8]
         n = (8 + data[i + 9]) if stx == 0xFE else (12 + data[i + 9])
-        out.append((ts, data[i + 8:i + 8 + n]))
+        out.append((ts, data[i + 8 : i + 8 + n]))
         i += 8 + n
     return out
 
@@ -66,7 +66,7 @@ def test_truncated_final_packet_is_tolerated(clean: bytes) -> None:
     recs = _records(clean)
     whole = clean[: len(clean) - (8 + len(recs[-1][1]))]
     for cut in (1, 5, 8, 9, 11, 8 + len(recs[-1][1]) - 1):
-        msgs, r = _read(whole + clean[len(whole):len(whole) + cut])
+        msgs, r = _read(whole + clean[len(whole) : len(whole) + cut])
         assert _keys(msgs) == recs[:-1]
         assert r.stats.truncated == 1
         assert r.stats.garbage_bytes == 0
@@ -193,5 +193,8 @@ def test_signed_mavlink2_packets_are_read_and_counted(clean: bytes) -> None:
             out += encode_record(ts + 4, mav.attitude_encode(i, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0).pack(mav))
     msgs, r = _read(bytes(out))
     assert len(msgs) == 55 and r.stats.signed == 5 and r.stats.garbage_bytes == 0
-    assert [m.time_boot_ms for _, m in msgs if m.get_srcSystem() == 1 and m.get_type() == "ATTITUDE"
-            and m.roll == pytest.approx(0.1)] == [0, 10, 20, 30, 40]
+    assert [
+        m.time_boot_ms
+        for _, m in msgs
+        if m.get_srcSystem() == 1 and m.get_type() == "ATTITUDE" and m.roll == pytest.approx(0.1)
+    ] == [0, 10, 20, 30, 40]

@@ -1,7 +1,7 @@
 """Synthetic .tlog files for the replay tests and benchmark, generated here (no binaries are committed).
 
-:func:`flight_log` simulates the plant (``sim_bridge.dynamics``: hover thrust, an initial swing, small
-sinusoidal torques) and encodes what a PX4-like autopilot would stream with ``sim_bridge.telemetry``'s message
+:func:`flight_log` simulates the plant (``sim_bridge.plant.dynamics``: hover thrust, an initial swing, small
+sinusoidal torques) and encodes what a PX4-like autopilot would stream with ``sim_bridge.protocol.telemetry``'s message
 builders and pymavlink: HEARTBEAT, ATTITUDE, LOCAL_POSITION_NED, HIGHRES_IMU and the cable-angle sensor
 (DEBUG_VECT "LOADANG"), each at its own rate. Options switch parts off (no heartbeat, no load sensor, no local
 position, fixed-wing heartbeat, MAVLink 1 framing) for the "what is missing" tests.
@@ -14,18 +14,20 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from estimators.cable import cable_from_planar
-from estimators.vehicle import Vehicle
-from offboard.tlog import encode_record
-from sim_bridge import dynamics
-from sim_bridge.telemetry import (
-    Home,
-    TelemetrySource,
+from estimators.model.cable import cable_from_planar
+from estimators.model.vehicle import Vehicle
+from offboard.logs.estimate_columns import EST_NAMES
+from offboard.logs.tlog import encode_record
+from sim_bridge.plant import dynamics
+from sim_bridge.protocol.messages import (
     msg_attitude,
     msg_debug_vect,
+    msg_global_position_int,
     msg_highres_imu,
+    msg_load_global_position_int,
     msg_local_position_ned,
 )
+from sim_bridge.protocol.telemetry import Home, TelemetrySource
 
 EPOCH_US = 1_790_000_000_000_000  # 2026-09-21, logger clock at the start of the log
 PX4_OFFBOARD = 6 << 16
@@ -49,10 +51,17 @@ class LogSpec:
     custom_mode: int = PX4_OFFBOARD
     boot_s: float = 12.0
     landed_until_s: float | None = None  # EXTENDED_SYS_STATE at 5 Hz: ON_GROUND before, IN_AIR after (None: none)
+    armed: bool = True  # the HEARTBEAT's armed flag
+    position_jump: tuple[float, float] | None = None  # (from t, metres): LOCAL_POSITION_NED x shifted from then on
+    payload_hz: float = 0.0  # > 0: the vehicle's and the payload's own GLOBAL_POSITION_INT (system 2, an airship)
 
 
 class _Ctx:
+    """What sim_bridge.protocol.telemetry's message builders read of the emulator: its home and its EKF error model
+    (none: the local frame's origin is the ground)."""
+
     home = Home()
+    ekf = None
 
 
 def _due(t_us: int, hz: float, step_us: int) -> bool:
@@ -68,6 +77,7 @@ def flight_log(spec: LogSpec = LogSpec()) -> bytes:
     x = dynamics.make_state(position=(0.0, 0.0, 2.0), cable=r, cable_rate=rd)
     src = TelemetrySource(p, _Ctx.home)
     mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    mav_load = mavlink2.MAVLink(None, srcSystem=2, srcComponent=25)  # as ArduPilot's slung-payload SITL reports
     out = bytearray()
     dt_us = 1000
     n = int(spec.seconds * 1e6 / dt_us)
@@ -81,19 +91,34 @@ def flight_log(spec: LogSpec = LogSpec()) -> bytes:
         msgs = []
         vt = boot_us + t_us
         if spec.heartbeat and _due(t_us, 1.0, dt_us):
-            msgs.append(mav.heartbeat_encode(spec.mav_type, spec.autopilot, 1 | 128, spec.custom_mode, 4))
+            base_mode = 1 | (128 if spec.armed else 0)
+            msgs.append(mav.heartbeat_encode(spec.mav_type, spec.autopilot, base_mode, spec.custom_mode, 4))
         if spec.landed_until_s is not None and _due(t_us, 5.0, dt_us):
             msgs.append(mav.extended_sys_state_encode(0, 1 if t < spec.landed_until_s else 2))
         snap = None
-        for hz, builder, on in ((spec.attitude_hz, msg_attitude, True),
-                                (spec.position_hz, msg_local_position_ned, spec.local_position),
-                                (spec.imu_hz, msg_highres_imu, True),
-                                (spec.load_hz, msg_debug_vect, spec.load)):
+        for hz, builder, on in (
+            (spec.attitude_hz, msg_attitude, True),
+            (spec.position_hz, msg_local_position_ned, spec.local_position),
+            (spec.imu_hz, msg_highres_imu, True),
+            (spec.load_hz, msg_debug_vect, spec.load),
+        ):
             if on and _due(t_us, hz, dt_us):
                 snap = snap or src.snapshot(vt, x, u)
-                msgs.append(builder(mav, snap, _Ctx))
+                msg = builder(mav, snap, _Ctx)
+                if builder is msg_local_position_ned and spec.position_jump and t >= spec.position_jump[0]:
+                    msg.x += spec.position_jump[1]  # a planted jump of the autopilot's position (north, m)
+                msgs.append(msg)
+        load_msgs = []
+        if spec.payload_hz > 0 and _due(t_us, spec.payload_hz, dt_us):
+            snap = snap or src.snapshot(vt, x, u)
+            msgs.append(msg_global_position_int(mav, snap, _Ctx))
+            if _due(t_us, 1.0, dt_us):
+                load_msgs.append(mav_load.heartbeat_encode(7, 8, 0, 0, 4))  # AIRSHIP, AUTOPILOT_INVALID, ACTIVE
+            load_msgs.append(msg_load_global_position_int(mav_load, snap, _Ctx))
         for i, m in enumerate(msgs):
             out += encode_record(EPOCH_US + t_us + 400 + 8 * i, m.pack(mav, force_mavlink1=spec.mavlink1))
+        for i, m in enumerate(load_msgs):
+            out += encode_record(EPOCH_US + t_us + 600 + 8 * i, m.pack(mav_load, force_mavlink1=spec.mavlink1))
         x = dynamics.rk4_step(x, u, p, dt_us * 1e-6, t)
     return bytes(out)
 
@@ -101,21 +126,26 @@ def flight_log(spec: LogSpec = LogSpec()) -> bytes:
 __all__ = ["EPOCH_US", "LIVE_HEADER", "LogSpec", "flight_log", "offboard_log", "write_live_table"]
 
 
+LIVE_HEADER = (
+    "t_vehicle",
+    "t_ref",
+    "n_meas",
+    *("est_" + n for n in EST_NAMES),
+    *(f"sp{i}" for i in range(9)),
+)
 
 
-LIVE_HEADER = ("t_vehicle", "t_ref", "n_meas",
-               *("est_" + n for n in ("fx0", "fx1", "fx2", "fx3", "fx4", "fx5", "fy0", "fy1", "fy2", "fy3", "fy4",
-                                      "fy5", "z", "z_rate", "phi", "theta", "psi", "phi_rate", "theta_rate",
-                                      "psi_rate", "alpha_x", "alpha_y", "alpha_x_rate", "alpha_y_rate")),
-               *(f"sp{i}" for i in range(9)))
-
-
-def offboard_log(seconds: float = 3.0, rate_hz: float = 250.0, output: str = "attitude", scenario: str = "hover",
-                 switch_s: float = 0.3) -> tuple[bytes, list[tuple[float, ...]]]:
-    """A log of an offboard flight flown the way ``offboard.loop.FlightLoop`` flies (for the replay tests when
+def offboard_log(
+    seconds: float = 3.0,
+    rate_hz: float = 250.0,
+    output: str = "attitude",
+    scenario: str = "hover",
+    switch_s: float = 0.3,
+) -> tuple[bytes, list[tuple[float, ...]]]:
+    """A log of an offboard flight flown the way ``offboard.flight.loop.FlightLoop`` flies (for the replay tests when
     the live loop itself is not at hand), with the same building blocks.
 
-    The plant (``sim_bridge.dynamics``, off the reference with the load swinging) streams ATTITUDE and HIGHRES_IMU
+    The plant (``sim_bridge.plant.dynamics``, off the reference with the load swinging) streams ATTITUDE and HIGHRES_IMU
     at 250 Hz, LOCAL_POSITION_NED and the cable-angle sensor at 50 Hz; the companion streams hover setpoints
     until the HEARTBEAT reports OFFBOARD (at ``switch_s``), then initializes the Kalman filter from the latest
     telemetry, shifts the reference to start where the vehicle is, and ticks every ``1 / rate_hz``: it pushes the
@@ -124,13 +154,13 @@ def offboard_log(seconds: float = 3.0, rate_hz: float = 250.0, output: str = "at
     command back. The plant flies the controller's thrust and torques. Returns the tlog bytes and the live tick
     rows (columns :data:`LIVE_HEADER`, like the loop's ``timeseries_live.csv``).
     """
-    from estimators.factory import make_estimator
-    from offboard import smc
-    from offboard.command_mapping import CommandMapper, MappingConfig
-    from offboard.link.setpoints import encode
-    from offboard.link.telemetry import TelemetryDecoder
-    from offboard.replay import initial_guess
-    from offboard.scenarios import make_scenario
+    from estimators.filters.factory import make_estimator
+    from offboard.control import smc
+    from offboard.control.scenarios import make_scenario
+    from offboard.flight.command_mapping import CommandMapper, MappingConfig
+    from offboard.flight.link.setpoints import encode
+    from offboard.flight.link.telemetry import TelemetryDecoder
+    from offboard.logs.replay import initial_guess
 
     v = Vehicle()
     p = dynamics.plant_params(v)
@@ -142,7 +172,7 @@ def offboard_log(seconds: float = 3.0, rate_hz: float = 250.0, output: str = "at
     rx = mavlink2.MAVLink(None)
     dec = TelemetryDecoder(system=1)
     est_f = make_estimator("kf", v, load_sensor=True, rate_hz=rate_hz)
-    from offboard.loop import ActuatorLag
+    from offboard.flight.loop import ActuatorLag
 
     lag = ActuatorLag(v.motor_time_constant)  # the live loop gives the filter what the motors deliver
     params = smc.ControllerParams.for_vehicle(v, switching="smooth", epsilon=1.0)
@@ -172,8 +202,12 @@ def offboard_log(seconds: float = 3.0, rate_hz: float = 250.0, output: str = "at
             msgs.append(mav.heartbeat_encode(2, 12, 1 | 128, mode, 4))
         snap = src.snapshot(vt, x, u)
         paused = ready and t_us <= switch_us + tick_us  # lockstep: no telemetry until the first setpoint
-        for hz, builder in ((250.0, msg_attitude), (50.0, msg_local_position_ned), (250.0, msg_highres_imu),
-                            (50.0, msg_debug_vect)):
+        for hz, builder in (
+            (250.0, msg_attitude),
+            (50.0, msg_local_position_ned),
+            (250.0, msg_highres_imu),
+            (50.0, msg_debug_vect),
+        ):
             if _due(t_us, hz, dt_us) and not paused:
                 msgs.append(builder(mav, snap, _Ctx))
         for i, m in enumerate(msgs):
@@ -218,8 +252,11 @@ def offboard_log(seconds: float = 3.0, rate_hz: float = 250.0, output: str = "at
             sp = mapper.map(t_ref, cmd, est)
             out += encode_record(lt + 100, encode(gcs, sp, t_ref, 1, 1).pack(gcs))
             est_f.push_command(t_v, *lag(t_v, cmd.thrust, (cmd.tau_phi, cmd.tau_theta, cmd.tau_psi)))
-            fields = ((*sp.q, sp.roll_rate, sp.pitch_rate, sp.yaw_rate, sp.thrust, float(sp.type_mask))
-                      if output == "attitude" else (*sp, nan, nan, nan, nan, nan))
+            fields = (
+                (*sp.q, sp.roll_rate, sp.pitch_rate, sp.yaw_rate, sp.thrust, float(sp.type_mask))
+                if output == "attitude"
+                else (*sp, nan, nan, nan, nan, nan)
+            )
             live.append((t_v, t_ref, float(n_meas), *est.fx, *est.fy, *est[2:], *fields))
             u = dynamics.make_input(cmd.thrust, (cmd.tau_phi, cmd.tau_theta, cmd.tau_psi))
         x = dynamics.rk4_step(x, u, p, dt_us * 1e-6, t_us * 1e-6)

@@ -1,0 +1,3 @@
+"""The Kalman filters that turn measurement records into a ``ControlState``, and the factory that builds one by
+name (``docs/estimation.md``).
+"""

@@ -1,0 +1,128 @@
+"""The measured-input Kalman filter's model (``estimators.filters.measured_kf``): its noise assumptions, its blocks
+and the adapted variance of a measurement channel (the derivation is in ``measured_kf``'s docstring and
+``docs/estimation.md``).
+
+Shared by the filter's public class (``measured_kf``), its prediction (``measured_predict``) and its gated updates
+(``measured_update``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+from estimators.filters.fusion import BlockState, MeasurementNoise
+from estimators.filters.small_kf import Matrix
+
+
+@dataclass(frozen=True)
+class MeasuredTuning(MeasurementNoise):
+    """Noise assumptions (SI, rad). Measurement standard deviations are floors: the filter raises a channel's
+    variance to what its innovations show. Process noises are continuous spectral densities."""
+
+    q_v: float = 0.005  # (m/s^2)^2/Hz: acceleration the held accelerometer sample misses (noise, between samples)
+    q_vz: float = 0.05  # (m/s^2)^2/Hz: the same vertically, where a sign-switching height law's 1 kHz thrust chatter
+    # aliases into 50 Hz accelerometer samples (0.005 gave the sensorless paper scenario e_z 0.053 m, above Table 2)
+    q_v_no_imu: float = 5.0  # (m/s^2)^2/Hz: white acceleration when no IMU telemetry arrives
+    q_b: float = 1e-6  # (m/s^3)^2/Hz: accelerometer bias random walk
+    # position wandering apart from the integrated velocity (an EKF's GNSS / baro corrections: PX4 SITL's position
+    # drifted 3 m, its height 0.4 m from the integrals of its own velocity in 16 s), m^2/s: adapted between these
+    # bounds from the position innovations' running mean (white innovations: the lower bound)
+    q_p_min: float = 1e-5
+    q_p_max: float = 0.03
+    wander_rate: float = 0.05  # weight of one innovation in the running mean that detects a wander
+    sigma_gyro: float = 0.01  # rad/s: the IMU's gyro as a body-rate measurement (floor; adapted like the others)
+    q_n: float = 20.0  # (rad/s^2)^2/Hz: tilt acceleration beyond the commanded one (the autopilot's own loops)
+    tilt_command: bool = True  # the commanded tilt acceleration as the tilt blocks' input (False: n'' white only)
+    fuse_gyro: bool = False  # the IMU's gyro as a second rate measurement of the tilt and heading blocks
+    q_psi: float = 1.0  # (rad/s^2)^2/Hz: yaw acceleration
+    q_a: float = 0.05  # (rad/s^2)^2/Hz: swing acceleration the pendulum model misses
+    q_e: float = 0.5  # (m/s^3)^2/Hz: external acceleration seen by the accelerometer
+    imu_timeout_s: float = 0.1  # an IMU sample older than this is no longer the acceleration input
+    # the acceleration input's plausibility gate widened by the thrust changes pushed over the last imu_timeout_s:
+    # a jump of the measured acceleration that the commanded thrust explains is not an outlier (False: the gate
+    # takes only the sensor noise, which refused the law's own thrust steps; docs/estimation.md section 0.1)
+    thrust_explains_jumps: bool = True
+    prior_pos: float = 0.05
+    prior_vel: float = 0.1
+    prior_bias: float = 0.1
+    prior_swing: float = 0.15
+    prior_swing_rate: float = 0.5
+    prior_e: float = 0.3
+    prior_tilt: float = 0.02
+    prior_tilt_rate: float = 0.05
+    prior_psi: float = 0.02
+    prior_psi_rate: float = 0.05
+    gate_probability: float = 0.9999
+    gate_reopen: int = 10
+    noise_adapt_rate: float = 0.01  # weight of one innovation in the running innovation statistics
+    noise_ceiling: float = 30.0  # an adapted standard deviation stays below this multiple of the nominal one
+    accel_gain_filter: float = 0.1  # weight of a new sample in the low-pass of the vertical specific force
+
+
+def thrust_window(tuning: MeasuredTuning, rate_hz: float) -> int:
+    """How many pushed commands (one per control tick at ``rate_hz``, Hz) span ``tuning.imu_timeout_s``: the window
+    of thrusts whose range widens the acceleration input's gate (at least 1)."""
+    return max(1, math.ceil(tuning.imu_timeout_s * rate_hz - 1e-9))
+
+
+#: the roles of a block (:attr:`Block.role`): position / velocity / bias, swing, tilt or heading
+KIN, SWING, RATE = range(3)
+
+
+class Gyro(NamedTuple):
+    """The gyro of an IMU record (body FLU, rad/s), queued with the attitude records."""
+
+    t: float
+    p: float
+    q: float
+    r: float
+
+
+class Block(BlockState):
+    """One filter block (:class:`~estimators.filters.fusion.BlockState`: time s, mean and covariance as lists) with
+    its role (``KIN``, ``SWING``, ``RATE``) and axis (0, 1, 2: x, y, z; 0 for the heading), so that the hot path
+    finds its model without searching the lists; the prior covariance diagonal from the standard deviations ``sd``."""
+
+    __slots__ = ("axis", "role")
+    p: Matrix
+
+    def __init__(self, t: float, x: list[float], sd: tuple[float, ...], role: int, axis: int) -> None:
+        n = len(x)
+        super().__init__(t, list(x), [[sd[i] ** 2 if i == j else 0.0 for j in range(n)] for i in range(n)])
+        self.role, self.axis = role, axis
+
+
+class Channel:
+    """Adapted variance of one measurement channel: max(floor, E[y^2] - E[h P h]) over recent innovations."""
+
+    __slots__ = ("ceiling", "ehph", "ey2", "floor", "nominal")
+
+    def __init__(self, floor: float, ceiling_factor: float) -> None:
+        self.nominal = floor
+        self.floor = floor
+        self.ceiling = floor * ceiling_factor**2
+        self.ey2 = floor
+        self.ehph = 0.0
+
+    def value(self) -> float:
+        v = self.ey2 - self.ehph
+        if v > self.ceiling:  # a filter that has drifted off must not explain it away as sensor noise
+            return self.ceiling
+        return v if v > self.floor else self.floor
+
+    def bound(self, reported: float) -> None:
+        """Keep the adapted variance between the nominal floor and the autopilot's ``reported`` variance, whichever
+        is the larger (the innovation statistics choose within)."""
+        self.floor, self.ceiling = (reported, self.nominal) if reported < self.nominal else (self.nominal, reported)
+
+    def learn(self, y: float, hph: float, r: float, gate: float, rate: float) -> None:
+        """One innovation ``y`` whose predicted variance was ``hph + r``; clipped at the gate so that one wild
+        outlier moves the statistics by a bounded amount."""
+        y2 = min(y * y, gate * (hph + r))
+        self.ey2 += rate * (y2 - self.ey2)
+        self.ehph += rate * (hph - self.ehph)
+
+
+__all__ = ["KIN", "RATE", "SWING", "Block", "Channel", "Gyro", "MeasuredTuning", "thrust_window"]

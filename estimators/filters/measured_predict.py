@@ -1,0 +1,142 @@
+"""The measured-input Kalman filter's prediction (``estimators.filters.measured_kf``): each block's discrete model
+for a step with the inputs in force (closed forms, ``estimators.filters.small_kf``), its prediction, and the reads
+of a block predicted to the output time that leave the filter as it was.
+
+A mixin of :class:`~estimators.filters.measured_kf.MeasuredKalmanEstimator` (it uses the estimator's blocks
+``_kin``, ``_tilt``, ``_head``, ``_swing`` and inputs ``_u``, ``_u_tilt``, ``_t_imu``, ``_q_p``), kept apart from the
+gated updates (``measured_update``) and the public class.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from estimators.filters.measured_model import KIN, RATE, SWING, Block, MeasuredTuning
+from estimators.filters.small_kf import Matrix, kinematic_model, pendulum_model, predict, rate_model
+from estimators.model.control_state import ControlState
+from estimators.model.flatness import control_state_from_tilt
+
+
+class MeasuredPrediction:
+    """Prediction of :class:`~estimators.filters.measured_kf.MeasuredKalmanEstimator`'s blocks (see the module
+    docstring)."""
+
+    _g: float
+    _head: Block
+    _kin: list[Block]
+    _l: float
+    _q_p: list[float]
+    _swing: list[Block]
+    _t_imu: float
+    _tilt: list[Block]
+    _u: list[float]
+    _u_tilt: tuple[float, float]
+    has_load: bool
+    k: Any
+    tuning: MeasuredTuning
+
+    def _horizon_floor(self) -> float:
+        """The oldest time a position, IMU or cable-angle record may have (the blocks they touch)."""
+        return min(b.t for b in (*self._kin, *self._swing))
+
+    def _imu_fresh(self, t: float) -> bool:
+        return t - self._t_imu <= self.tuning.imu_timeout_s
+
+    def _model(self, b: Block, h: float) -> tuple[Matrix, list[float] | None, float, Matrix]:
+        """(Phi, Gamma, input, Q) of block ``b`` for a step ``h`` from its time, with the inputs in force."""
+        tn = self.tuning
+        role = b.role
+        if role == KIN:
+            i = b.axis
+            fresh = self._imu_fresh(b.t)
+            q_v = (tn.q_v if i < 2 else tn.q_vz) if fresh else tn.q_v_no_imu
+            phi, gam, q = kinematic_model(h, q_v, tn.q_b, self._q_p[i])
+            return phi, gam, (self._u[i] if fresh else 0.0), q
+        if role == SWING:
+            i = b.axis
+            fresh = self._imu_fresh(b.t)
+            uz = self._u[2] if fresh else 0.0
+            w2 = max(self._g + uz, 0.2 * self._g) / self._l
+            u = (self._u[i] - self._kin[i].x[2]) if fresh else 0.0
+            phi, gam, q = pendulum_model(h, w2, tn.q_a, tn.q_e)
+            return phi, gam, -u / self._l, q
+        if b is self._head:
+            phi, q = rate_model(h, tn.q_psi)
+            return phi, None, 0.0, q
+        phi, q = rate_model(h, tn.q_n)  # a tilt block: the commanded acceleration as its input
+        return phi, [0.5 * h * h, h], self._u_tilt[b.axis], q
+
+    def _advance(self, b: Block, t: float) -> None:
+        h = t - b.t
+        if h <= 0.0:
+            return
+        phi, gam, u, q = self._model(b, h)
+        predict(b.x, b.p, phi, gam, u, q)
+        b.t = t
+
+    def _predicted(self, b: Block, t: float) -> tuple[list[float], Matrix]:
+        """Mean and covariance of ``b`` predicted to ``t`` (copies; ``b`` untouched)."""
+        x, p = list(b.x), [list(r) for r in b.p]
+        h = t - b.t
+        if h > 0.0:
+            phi, gam, u, q = self._model(b, h)
+            predict(x, p, phi, gam, u, q)
+        return x, p
+
+    def _var0(self, b: Block, t: float) -> float:
+        """The variance of ``b``'s first state predicted to ``t`` (``(Phi P Phi^T + Q)[0][0]``; ``b`` untouched)."""
+        p = b.p
+        h = t - b.t
+        if h <= 0.0:
+            return p[0][0]
+        phi, _, _, q = self._model(b, h)
+        f = phi[0]
+        # f P f^T unrolled (the replay asks for it 8 times a tick), in the order of the sums it replaces: the same bits
+        if len(f) == 3:
+            f0, f1, f2 = f
+            p0, p1, p2 = p
+            r0 = 0.0 + p0[0] * f0 + p0[1] * f1 + p0[2] * f2
+            r1 = 0.0 + p1[0] * f0 + p1[1] * f1 + p1[2] * f2
+            r2 = 0.0 + p2[0] * f0 + p2[1] * f1 + p2[2] * f2
+            return 0.0 + f0 * r0 + f1 * r1 + f2 * r2 + q[0][0]
+        f0, f1 = f
+        p0, p1 = p
+        return 0.0 + f0 * (0.0 + p0[0] * f0 + p0[1] * f1) + f1 * (0.0 + p1[0] * f0 + p1[1] * f1) + q[0][0]
+
+    def _mean_at(self, b: Block, t: float) -> list[float]:
+        """The mean of ``b`` predicted to ``t`` with the inputs in force (closed forms, no covariance)."""
+        h = t - b.t
+        x = b.x
+        if h <= 0.0:
+            return list(x)
+        if b is self._head:
+            return [x[0] + h * x[1], x[1]]
+        if b.role == RATE:  # a tilt block: the commanded acceleration held
+            u = self._u_tilt[b.axis]
+            return [x[0] + h * x[1] + 0.5 * h * h * u, x[1] + h * u]
+        if b.role == KIN:
+            i = b.axis
+            acc = (self._u[i] if self._imu_fresh(b.t) else 0.0) - x[2]
+            return [x[0] + h * x[1] + 0.5 * h * h * acc, x[1] + h * acc, x[2]]
+        phi, gam, u, _ = self._model(b, h)
+        xs = [phi[i][0] * x[0] + phi[i][1] * x[1] + phi[i][2] * x[2] for i in range(3)]
+        if u != 0.0 and gam is not None:
+            xs = [xs[i] + gam[i] * u for i in range(3)]
+        return xs
+
+    def _control_state(self, t: float) -> ControlState:
+        (px, vx, _), (py, vy, _), (z, z_rate, _) = (self._mean_at(b, t) for b in self._kin)
+        nx, nxd = self._mean_at(self._tilt[0], t)
+        ny, nyd = self._mean_at(self._tilt[1], t)
+        psi, psi_rate = self._mean_at(self._head, t)
+        if self.has_load:
+            ay_, ayd, _ = self._mean_at(self._swing[0], t)
+            ax_, axd, _ = self._mean_at(self._swing[1], t)
+        else:
+            ay_ = ayd = ax_ = axd = 0.0
+        return control_state_from_tilt(
+            self.k, (px, vx, ay_, ayd, nx, nxd), (py, vy, ax_, axd, ny, nyd), z, z_rate, psi, psi_rate
+        )
+
+
+__all__ = ["MeasuredPrediction"]

@@ -1,0 +1,114 @@
+"""Controllers by name, as ``slung compare`` / ``slung sweep`` take them (``--controllers smc,cascade,...``).
+
+Each entry builds a fresh :class:`~offboard.control.controllers.protocol.Controller` for the controller's nominal
+vehicle; the baselines are imported only when asked for (LQR needs python-control).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from estimators.errors import UserError
+from estimators.model.vehicle import Vehicle
+from offboard.control import smc
+from offboard.control.controllers.protocol import Controller
+
+#: the attitude telemetry's age the ``smc`` row's law leads over besides the motors' lag (s): px4-typical's
+#: 100 Hz ATTITUDE is 5 ms old on average when the next one arrives, plus 4 ms latency and 1.5 ms mean jitter,
+#: plus the 0-20 ms the default sweep adds (docs/compare.md#the-smc-row-the-actuation-lag-designed-in)
+TELEMETRY_AGE_S = 0.02
+#: the ``smc`` row's switching amplitude, m/s^6: the paper's 1000 makes the sign switching chatter through the
+#: lags into a residual swing above the sweep's bound (0.056 rad against 0.05 at 40 ms motors, noise x2)
+RHO_F = 100.0
+
+
+def smc_params(vehicle: Vehicle, switching: str = "sign", epsilon: float = 1.0) -> smc.ControllerParams:
+    """The ``smc`` row's law: the paper's torque-level law with its actuation lag designed in (the nominal
+    motor time constant plus :data:`TELEMETRY_AGE_S`) and the switching amplitude :data:`RHO_F`."""
+    return smc.ControllerParams.for_vehicle(
+        vehicle,
+        gains=smc.Gains.from_poles(rho_F=RHO_F),
+        switching=switching,
+        epsilon=epsilon,
+        actuation_lag_s=vehicle.motor_time_constant + TELEMETRY_AGE_S,
+    )
+
+
+def _smc(vehicle: Vehicle, switching: str = "sign", epsilon: float = 1.0) -> Controller:
+    from offboard.control.controllers.sliding_mode import SlidingModeController
+
+    return SlidingModeController(smc_params(vehicle, switching, epsilon))
+
+
+def _smc_attitude(vehicle: Vehicle, **_: object) -> Controller:
+    """The attitude-level law with its own default switching (smooth, as ``slung fly --law attitude``) and the
+    default inner loop; in ``slung sim`` its torque fields (the rate loop's expected torques) drive the plant."""
+    from offboard.control import smc_attitude
+    from offboard.control.controllers.sliding_mode import AttitudeSlidingModeController
+
+    params = smc_attitude.AttitudeParams.for_vehicle(vehicle, overrides=dict(vehicle.gains), switching="smooth")
+    return AttitudeSlidingModeController(params)
+
+
+def _cascade(vehicle: Vehicle, **_: object) -> Controller:
+    from offboard.control.controllers.cascade import CascadeController
+
+    return CascadeController(vehicle)
+
+
+def _lqr(vehicle: Vehicle, **_: object) -> Controller:
+    from offboard.control.controllers.lqr import LqrController
+
+    return LqrController(vehicle)
+
+
+def _zv(vehicle: Vehicle, **_: object) -> Controller:
+    from offboard.control.controllers.shaping import ShapedCascade
+
+    return ShapedCascade(vehicle, "zv")
+
+
+def _zvd(vehicle: Vehicle, **_: object) -> Controller:
+    from offboard.control.controllers.shaping import ShapedCascade
+
+    return ShapedCascade(vehicle, "zvd")
+
+
+def _swing_feedback(vehicle: Vehicle, **_: object) -> Controller:
+    from offboard.control.controllers.swing_feedback import SwingFeedbackCascade
+
+    return SwingFeedbackCascade(vehicle)
+
+
+#: name -> factory(vehicle, switching=..., epsilon=...) (the sliding-mode options; the baselines ignore them)
+CONTROLLERS: dict[str, Callable[..., Controller]] = {
+    "smc": _smc,
+    "smc-attitude": _smc_attitude,
+    "cascade": _cascade,
+    "lqr": _lqr,
+    "zv": _zv,
+    "zvd": _zvd,
+    "swing-feedback": _swing_feedback,
+}
+
+
+def make(name: str, vehicle: Vehicle, switching: str = "sign", epsilon: float = 1.0) -> Controller:
+    """A fresh controller ``name`` for the nominal ``vehicle``; UserError for an unknown name."""
+    factory = CONTROLLERS.get(name)
+    if factory is None:
+        raise UserError(f"unknown controller {name!r} (known: {', '.join(CONTROLLERS)})")
+    return factory(vehicle, switching=switching, epsilon=epsilon)
+
+
+def parse_list(text: str | None) -> list[str]:
+    """``"smc,cascade"`` -> ``["smc", "cascade"]`` (None or empty: every controller); UserError for an unknown
+    name or a repeated one."""
+    if not text:
+        return list(CONTROLLERS)
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    for n in names:
+        if n not in CONTROLLERS:
+            raise UserError(f"unknown controller {n!r} (known: {', '.join(CONTROLLERS)})")
+    if len(set(names)) != len(names):
+        raise UserError(f"controller listed twice in {text!r}")
+    return names

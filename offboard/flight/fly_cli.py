@@ -1,0 +1,450 @@
+"""``slung fly``: fly a real or emulated vehicle over MAVLink with the Kalman filter and the sliding-mode controller.
+
+Usage::
+
+    slung fly --connect URL (--scenario NAME | --trajectory FILE) [--output attitude|actuator]
+              [--mask attitude|attitude+rates|rates] [--rate HZ] [--vehicle FILE] [--backend pymavlink|mavsdk]
+              [--lockstep] [--stale-limit S] [--swing-limit RAD] [--end hold|land] [--on-signal hold|land]
+              --out DIR
+
+Writes into DIR: ``flight.tlog`` (every packet in and out, QGC format, flushed as written),
+``timeseries_live.csv`` (one row per tick, every estimator / controller / setpoint field at full precision, the
+columns of ``offboard.flight.loop.LIVE_COLUMNS``), ``events.json`` (every watchdog, fallback and management step with
+its reason), ``metrics.json`` (the ``slung sim`` schema plus ``loop``, ``link``, ``flight`` blocks),
+``timeseries.csv`` and figures (the ``slung sim`` report). Without a truth source (a real vehicle) the
+tracking errors are those of the ESTIMATE: ``metrics.json`` says so in ``flight.truth_source``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from estimators.errors import UserError
+from estimators.model.vehicle import Vehicle, load_vehicle
+from offboard.control import smc, smc_attitude
+from offboard.flight.attitude_mapping import AttitudeLawMapper
+from offboard.flight.command_mapping import CommandMapper, MappingConfig
+from offboard.flight.flight_outputs import write_flight_outputs
+from offboard.flight.fly_args import (
+    add_flight_arguments,
+    add_reference_arguments,
+    add_signing_arguments,
+    signing_config,
+)
+from offboard.flight.latency import DEFAULT_LIMIT_S as DEFAULT_LATENCY_LIMIT_S
+from offboard.flight.link.autopilot_model import AutopilotModel
+from offboard.flight.loop import (
+    RATE_MAX_HZ,
+    RATE_MIN_HZ,
+    FlightLoop,
+    LoopConfig,
+    TruthProbe,
+)
+from offboard.flight.status import FlightStatus
+from offboard.flight.supervisor import exit_code
+from offboard.logs.runlog import Scenario
+from offboard.outputs import prepare_output_dir, write_json_atomic
+
+#: the Kalman filter's fusion horizon behind its output, s (``estimators.filters.factory.make_estimator``'s default:
+#: above the 4-9 ms latency of PX4 / ArduPilot estimates and the emulator's px4-typical sensors)
+ESTIMATOR_DELAY_S = 0.012
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``slung fly``."""
+    p.add_argument(
+        "--connect",
+        required=True,
+        metavar="URL",
+        help="MAVLink connection: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, serial:/dev/X:BAUD",
+    )
+    p.add_argument("--baud", type=int, default=None, help="serial baud rate (default 57600, or from the URL)")
+    add_signing_arguments(p)
+    add_reference_arguments(p)
+    add_flight_arguments(p)
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if needed)")
+
+
+def set_realtime_priority(priority: int) -> str | None:
+    """SCHED_FIFO at ``priority`` for this process (Linux); a warning text when it cannot be done, else None.
+    The loop never busy-waits (it blocks in select), so a real-time priority does not starve the machine."""
+    if priority <= 0:
+        return None
+    if not 1 <= priority <= 99:
+        raise UserError(f"--rt-priority must be in 1..99, got {priority}")
+    try:
+        import os
+
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError) as exc:
+        return f"could not set real-time priority {priority}: {exc}"
+    return None
+
+
+def make_reference(args: argparse.Namespace) -> tuple[Scenario, float]:
+    """The scenario (or a trajectory wrapped as one) and the flight duration: the reference part only (plant-free,
+    ``offboard.control.scenarios``); a live flight starts wherever the vehicle is."""
+    from offboard.control.scenarios import make_scenario
+    from offboard.control.trajectory_file import load_trajectory_file
+
+    if getattr(args, "scenario", None):
+        sc = make_scenario(args.scenario, duration=args.duration)
+        return sc, sc.duration
+    ref = load_trajectory_file(args.trajectory)
+    dur = args.duration or getattr(ref, "duration", None)
+    if dur is None or not math.isfinite(dur) or dur <= 0:
+        raise UserError(f"{args.trajectory}: the trajectory has no duration: give --duration")
+    sc = Scenario(f"trajectory:{Path(args.trajectory).name}", f"trajectory file {args.trajectory}", dur, ref)
+    return sc, dur
+
+
+#: plausible bounds of a flown reference (heights relative to the take-off point, m; s); docs/usage-fly-demo.md
+DURATION_RANGE_S = (0.5, 3600.0)
+HEIGHT_RANGE_M = (0.3, 120.0)  # above the take-off point: clear of the ground with the load, below 120 m
+HORIZONTAL_RANGE_M = 1000.0  # from the reference's start
+
+
+def check_reference_bounds(scenario: Scenario, duration: float) -> None:
+    """UserError (one line, with the limit) for a duration or a reference that leaves the plausible range: the
+    load's height above the take-off point outside ``HEIGHT_RANGE_M`` or farther than ``HORIZONTAL_RANGE_M``
+    from its start, anywhere on the flight (sampled every 0.1 s, at most 4000 samples, and at the end)."""
+    lo, hi = DURATION_RANGE_S
+    if not (math.isfinite(duration) and lo <= duration <= hi):
+        raise UserError(f"{scenario.name}: duration {duration:g} s outside the plausible range {lo:g}..{hi:g} s")
+    ref = scenario.reference
+    s0 = ref.sample(0.0)
+    x0, y0 = s0.fx[0], s0.fy[0]
+    n = int(min(4000, max(10, duration / 0.1)))
+    zlo, zhi = HEIGHT_RANGE_M
+    for i in range(n + 1):
+        t = duration * i / n
+        s = ref.sample(t)
+        z, dxy = s.z[0], math.hypot(s.fx[0] - x0, s.fy[0] - y0)
+        if not (math.isfinite(z) and zlo <= z <= zhi):
+            raise UserError(
+                f"{scenario.name}: height {z:g} m above the take-off point at t = {t:g} s is outside the plausible "
+                f"range {zlo:g}..{zhi:g} m"
+            )
+        if not (math.isfinite(dxy) and dxy <= HORIZONTAL_RANGE_M):
+            raise UserError(
+                f"{scenario.name}: {dxy:g} m from the start at t = {t:g} s, beyond the plausible "
+                f"{HORIZONTAL_RANGE_M:g} m"
+            )
+
+
+def build_loop_config(
+    args: argparse.Namespace, lockstep: bool, takeoff: bool = True, inject: tuple[tuple[str, float, float], ...] = ()
+) -> LoopConfig:
+    """LoopConfig from the options; UserError for values out of range."""
+    cfg = LoopConfig(
+        rate_hz=args.rate,
+        lockstep=lockstep,
+        stale_s=args.stale_limit,
+        swing_limit_rad=args.swing_limit,
+        divergence_m=args.divergence_limit,
+        tracking_limit_m=getattr(args, "tracking_limit", 2.0),
+        latency_limit_s=getattr(args, "latency_limit", DEFAULT_LATENCY_LIMIT_S),
+        base_filter_delay_s=ESTIMATOR_DELAY_S,
+        end_action=args.end,
+        signal_action=args.on_signal,
+        takeoff=takeoff,
+        inject_nan=inject,
+        telemetry_timeout_s=getattr(args, "telemetry_timeout", 10.0),
+        start_timeout_s=getattr(args, "start_timeout", 10.0),
+    )
+    try:
+        cfg.validate()
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    return cfg
+
+
+def fly(
+    args: argparse.Namespace,
+    *,
+    lockstep: bool,
+    takeoff: bool = True,
+    truth_probe: TruthProbe | None = None,
+    inject: tuple[tuple[str, float, float], ...] = (),
+    backend: str = "pymavlink",
+    quiet: bool = False,
+    on_reference_start: Any = None,
+    scenario: Scenario | None = None,
+    controller: Any = None,
+    on_log: Any = None,
+) -> tuple[dict[str, Any], Path]:
+    """Connect, fly, write the report folder; returns (metrics, folder). Used by ``fly``, ``demo`` and tests.
+    ``scenario``: fly this reference instead of the one ``args`` names; ``controller``: this
+    :class:`~offboard.control.controllers.protocol.Controller` instead of the sliding-mode law (its output mapped
+    as the law's ``args.law`` says); ``on_log``: called with the flight's :class:`SimLog` (full rate)."""
+    from estimators.filters.factory import make_estimator
+    from offboard.flight.link.connection import MavConnection
+
+    out_dir = prepare_output_dir(args.out)
+    vehicle = load_vehicle(args.vehicle)
+    scenario, duration = make_reference(args) if scenario is None else (scenario, scenario.duration)
+    check_reference_bounds(scenario, duration)
+    cfg = build_loop_config(args, lockstep, takeoff, inject)
+    args.law = resolve_law(getattr(args, "law", "auto"), args.output, vehicle)
+    law = args.law
+    if law == "attitude" and args.output == "actuator":
+        raise UserError("--law attitude commands attitude and thrust: use --output attitude, or --law torque")
+    if getattr(args, "switching", None) is None:
+        args.switching = "smooth" if law == "attitude" else "sign"
+    torque_params = torque_law_params(vehicle, args.switching, args.epsilon)
+    args.shared_roll_pitch = torque_params.shared_roll_pitch and law == "torque"  # recorded for slung replay
+    mapping = MappingConfig(output=args.output, mask=args.mask or default_mask(None))
+    params: Any = torque_params
+    if law == "attitude":
+        params = smc_attitude.AttitudeParams.for_vehicle(
+            vehicle, overrides=vehicle_gain_overrides(vehicle), switching=args.switching, tilt_max=mapping.max_tilt
+        )
+        mapper: CommandMapper = AttitudeLawMapper(vehicle, mapping, AutopilotModel())
+    else:
+        mapper = CommandMapper(vehicle, mapping, AutopilotModel())
+    # the nominal feasibility check is the torque-level one: thrust and torque the vehicle can give, for either law
+    feasibility = check_feasibility(scenario, duration, vehicle, torque_params, mapper, cfg, args, quiet)
+    tlog_path = out_dir / "flight.tlog"
+    signing = signing_config(args)
+    manager: Any = None
+    if backend == "mavsdk":
+        from offboard.flight.link.mavsdk_backend import MavsdkConnection, MavsdkManager
+
+        conn: Any = MavsdkConnection(
+            args.connect, baud=getattr(args, "baud", None), tlog_path=tlog_path, signing=signing
+        )
+        manager = MavsdkManager(conn)
+    else:
+        conn = MavConnection(args.connect, baud=getattr(args, "baud", None), tlog_path=tlog_path, signing=signing)
+    wall0 = time.perf_counter()
+    prio_warning = set_realtime_priority(getattr(args, "rt_priority", 0))
+    status = None if quiet else FlightStatus()  # phases and a live status line on stderr (offboard.flight.status)
+    try:
+        if status is not None:
+            status.phase("connecting", f"waiting for the autopilot's heartbeat on {args.connect}")
+        info = conn.wait_heartbeat(timeout=15.0)
+        if info.flavour == "ardupilot" and args.output == "actuator":
+            raise UserError("ArduPilot has no actuator-control setpoint: use --output attitude")
+        mapper.set_autopilot(AutopilotModel(flavour=info.flavour))
+        if args.mask is None:  # the flavour's own default, now that the heartbeat has told which autopilot it is
+            args.mask = default_mask(info.flavour)
+            mapper.set_mask(args.mask)
+        load_sensor = True  # the filter always has the load-angle channel; without LOADANG it predicts the swing
+        est = make_estimator("kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate, delay_s=ESTIMATOR_DELAY_S)
+        loop = FlightLoop(
+            conn,
+            vehicle,
+            scenario.reference,
+            duration,
+            params,
+            mapper,
+            est,
+            cfg,
+            truth_probe,
+            manager=manager,
+            estimator_factory=lambda delay_s=ESTIMATOR_DELAY_S: make_estimator(
+                "kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate, delay_s=delay_s
+            ),
+            on_reference_start=on_reference_start,
+            controller=controller,
+        )
+        if not quiet:
+            print(
+                f"slung fly: {info.flavour} (system {info.system}) on {args.connect}; {scenario.name}, "
+                f"{duration:g} s, {law}-level law, {args.output} output at {args.rate:g} Hz"
+                + (" (lockstep)" if lockstep else ""),
+                file=sys.stderr,
+                flush=True,
+            )
+        if status is not None:
+            status.attach(loop)
+        try:
+            result = loop.run()
+        except UserError as exc:  # refused or impossible before the flight: the folder still says what happened
+            write_refusal_events(out_dir, loop, exc)
+            raise
+        if prio_warning:
+            result.warnings.append(prio_warning)
+        if not result.load_sensor:
+            result.warnings.append("no load-angle telemetry: the filter estimated the swing from the IMU")
+        if conn.tlog is not None and conn.tlog.failure is not None:
+            result.warnings.append(conn.tlog.failure + " (the flight went on)")
+        link = {
+            "received": conn.stats.received,
+            "sent": conn.stats.sent,
+            "bad_data": conn.stats.bad_data,
+            "by_type": dict(conn.stats.by_type),
+            "clock_source": conn.clock.source,
+            "tlog_records": conn.tlog.records if conn.tlog is not None else 0,
+            "tlog_failure": conn.tlog.failure if conn.tlog is not None else None,
+            "foreign_command_acks": conn.stats.foreign_acks,
+            "foreign_datagrams": conn.stats.foreign_datagrams,
+            "deferred_polls": conn.stats.deferred_polls,
+            "backend": backend,
+        }
+    finally:
+        if status is not None:
+            status.close()
+        conn.close()
+    result.warnings.extend(conn.signing_warnings)
+    link["signing"] = (
+        None
+        if signing is None
+        else {
+            "link_id": signing.link_id,
+            "state": str(signing.state_path),
+            "good_signatures": conn.mav.signing.goodsig_count,
+            "bad_signatures": conn.mav.signing.badsig_count,
+            "unsigned_refused": conn.mav.signing.unsigned_count,
+        }
+    )
+    wall = time.perf_counter() - wall0
+    m = write_flight_outputs(
+        out_dir,
+        result,
+        scenario,
+        vehicle,
+        args,
+        cfg,
+        info.flavour,
+        wall,
+        link,
+        loop_t0=loop.events,
+        figures=not args.no_figures,
+        estimator_config={"load_sensor": load_sensor, "delay_s": result.filter_delay_s or ESTIMATOR_DELAY_S},
+        feasibility=feasibility,
+        on_log=on_log,
+    )
+    if not quiet:
+        print(f"scenario {scenario.name}: ended by {result.ended_by}, vehicle {result.end_state}")
+        if m.get("rms"):
+            from offboard.report import metrics as metrics_mod  # the report side, loaded after the flight
+
+            print(metrics_mod.format_table(m))
+        lp = m["loop"]
+        pace = (
+            f"lockstep at {cfg.rate_hz:g} Hz of vehicle time ({(lp['rate_hz_achieved'] or 0) / cfg.rate_hz:.1f}x "
+            f"real time)"
+            if cfg.lockstep
+            else f"{lp['rate_hz_achieved'] or 0:.1f} Hz"
+        )
+        print(
+            f"loop: {pace}, compute p50/p99 {lp['compute_us_p50'] or 0:.0f}/"
+            f"{lp['compute_us_p99'] or 0:.0f} us, latency p50/p99 {lp['latency_us_p50'] or 0:.0f}/"
+            f"{lp['latency_us_p99'] or 0:.0f} us, missed {lp['missed_deadlines']}"
+        )
+        for w in result.warnings:
+            print(f"warning: {w}")
+        print(f"report: {out_dir.resolve()}")
+    return m, out_dir
+
+
+def write_refusal_events(out_dir: Path, loop: FlightLoop, exc: UserError) -> None:
+    """``events.json`` of a run that ended before the flight (an autopilot that refused to arm, to take off or to
+    enter offboard control; telemetry that never came): what the loop and management did and saw, and the error
+    (the same one line the command prints)."""
+    write_json_atomic(
+        out_dir / "events.json",
+        {
+            "loop": [e.__dict__ for e in loop.events],
+            "management": [e.__dict__ for e in loop.mgr.events],
+            "warnings": list(loop.mgr.warnings),
+            "error": str(exc),
+        },
+    )
+
+
+def torque_law_params(vehicle: Vehicle, switching: str, epsilon: float) -> smc.ControllerParams:
+    """The torque-level law a flight uses: the paper's, with the vehicle's limits, and on an X frame the roll and
+    pitch torques limited together (``shared_roll_pitch``): every motor takes part in both, so a pair at the corner
+    of the per-axis box is one the motors cannot give, and PX4's allocator (sequential desaturation, roll before
+    pitch) then cut the roll torque alone; at 30 % packet loss that swung the load up in world y, the roll axis, in
+    12-16 of 64 hovers (3-4 with this limit; docs/estimation.md section 0.3)."""
+    return smc.ControllerParams.for_vehicle(
+        vehicle, switching=switching, epsilon=epsilon, shared_roll_pitch=vehicle.frame == "x"
+    )
+
+
+def resolve_law(law: str | None, output: str, vehicle: Vehicle) -> str:
+    """``--law auto`` -> ``attitude`` or ``torque`` (see the option's help); the others as given."""
+    if law not in (None, "auto"):
+        return law
+    if output != "attitude":
+        return "torque"
+    if smc_attitude.robust_gains_exist(vehicle, smc_attitude.InnerLoop()):
+        return "attitude"
+    # a load swinging faster than the autopilot's attitude loop (docs/model.md §12.5); the start line names the law
+    return "torque"
+
+
+def vehicle_gain_overrides(vehicle: Vehicle) -> dict[str, float]:
+    """The attitude-level law's gains set in the vehicle file's ``[gains]`` table (UserError for an unknown name)."""
+    known = smc_attitude.GAIN_NAMES
+    for name, _ in vehicle.gains:
+        if name not in known:
+            raise UserError(f"vehicle file: unknown gain {name!r} in [gains] (known: {', '.join(known)})")
+    return dict(vehicle.gains)
+
+
+def check_feasibility(
+    scenario: Scenario,
+    duration: float,
+    vehicle: Vehicle,
+    params: smc.ControllerParams,
+    mapper: CommandMapper,
+    cfg: LoopConfig,
+    args: argparse.Namespace,
+    quiet: bool,
+) -> dict[str, Any]:
+    """The nominal pre-flight check of the reference (``offboard.control.feasibility``), before anything connects: a
+    reference the vehicle cannot fly even in theory is a UserError unless ``--force``; warnings are printed.
+    Returns the summary recorded in ``metrics.json`` (``feasibility``)."""
+    from offboard.control.feasibility import FeasibilityLimits, check_reference
+
+    limits = FeasibilityLimits.from_config(params, mapper.config, cfg.swing_limit_rad)
+    res = check_reference(scenario.reference, duration, vehicle, limits)
+    force = bool(getattr(args, "force", False))
+    if not res.feasible and not force:
+        raise UserError(
+            f"{scenario.name}: {res.messages[0]} (nominal pre-flight check, docs/references.md; "
+            "--force flies it anyway)"
+        )
+    if not quiet:
+        for d in res.violations:  # only here with --force
+            print(f"pre-flight check: beyond the vehicle's limits (flown anyway, --force): {d.why}", file=sys.stderr)
+        for d in res.warnings:  # flyable, with an action the user can take (the text says which)
+            print(f"pre-flight check, note: {d.why}", file=sys.stderr)
+    return {
+        "feasible": res.feasible,
+        "forced": force and not res.feasible,
+        "messages": list(res.messages),
+        "peaks": {d.name: d.peak for d in res.demands},
+    }
+
+
+def default_mask(flavour: str | None) -> str:
+    """The SET_ATTITUDE_TARGET mask a flight uses unless ``--mask`` says otherwise: ``attitude+rates`` on ArduPilot,
+    which adds the body rates as feed-forward and shapes the attitude request (ATC_INPUT_TC), so that the
+    mapping's look-ahead in the attitude alone is not cancelled; ``attitude`` elsewhere (PX4 ignores the rates
+    with it, and its P loop is the one the look-ahead inverts)."""
+    return "attitude+rates" if flavour == "ardupilot" else "attitude"
+
+
+def check_rate(rate_hz: float) -> None:
+    """UserError unless ``--rate`` is within the loop's documented limits."""
+    if not (RATE_MIN_HZ <= rate_hz <= RATE_MAX_HZ):
+        raise UserError(f"--rate must be within {RATE_MIN_HZ:g}..{RATE_MAX_HZ:g} Hz, got {rate_hz:g}")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Entry point of ``slung fly``: the exit code of how the flight ended (``offboard.flight.supervisor.exit_code``):
+    0 flown to the end; 1 a watchdog, a signal or an internal fault ended it (vehicle handed to hold / land);
+    3 the vehicle left offboard control without being asked (pilot, ground station, failsafe); 4 it disarmed."""
+    check_rate(args.rate)
+    m, _ = fly(args, lockstep=args.lockstep, takeoff=not args.no_takeoff, backend=args.backend)
+    return exit_code(m.get("flight", {}).get("ended_by", "internal_error"))

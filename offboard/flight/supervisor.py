@@ -1,0 +1,243 @@
+"""Supervision of the vehicle during offboard control: does the autopilot still do what the loop asked?
+
+The loop asks for one mode (OFFBOARD on PX4, GUIDED on ArduPilot) and an armed vehicle. Anything else the
+vehicle reports while the loop is in control ends the flight, with its reason:
+
+- ``mode_change``: a HEARTBEAT of the autopilot shows another mode than the one the loop asked for, after the
+  requested mode was seen (a pilot's RC mode switch, a ground station's DO_SET_MODE / SET_MODE, an autopilot
+  failsafe). A pilot taking over is a normal end, but never a "completed" flight: the loop stops streaming and
+  leaves the vehicle in the mode it is in (it does not fight the pilot by requesting hold);
+- ``disarmed``: a HEARTBEAT without MAV_MODE_FLAG_SAFETY_ARMED (a forced disarm, a kill switch, a crash
+  detector);
+- ``mode_not_entered``: the requested mode was acknowledged but no HEARTBEAT has shown it within
+  ``confirm_s`` (HEARTBEAT is a 1 Hz message on both autopilots, so the default is 3 s);
+- ``tracking_error``: the load's position error (estimated flat output against the reference) above
+  ``tracking_limit_m``; the vehicle is then handed to its hold mode by the loop.
+
+STATUSTEXT and COMMAND_ACK messages are recorded as they arrive (``notes``): the autopilot's own words (e.g.
+"Failsafe activated: offboard signal lost") and acknowledgements of commands the loop did not send (a
+COMMAND_ACK whose ``target_system`` / ``target_component`` is another sender: someone else is commanding the
+vehicle). The newest of them is quoted in a mode-change or disarm reason.
+
+The supervisor is fed the autopilot's messages by the loop (:meth:`observe`, HEARTBEAT / STATUSTEXT /
+COMMAND_ACK only) and asked once per tick (:meth:`check`); it never sends anything. Times are local monotonic
+seconds (the caller's clock: vehicle time in lockstep).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+MAV_MODE_FLAG_SAFETY_ARMED = 128
+
+#: exit codes of ``slung fly`` / ``slung demo`` by how the flight ended (docs/usage-fly-demo.md)
+EXIT_COMPLETED = 0
+EXIT_ABORTED = 1  # a watchdog, a signal or an internal fault ended the flight (vehicle handed to hold / land)
+EXIT_USER_ERROR = 2  # bad input or a refusal before the flight (estimators.errors.UserError)
+EXIT_TAKEN_OVER = 3  # the vehicle left offboard control without being asked (pilot, ground station, failsafe)
+EXIT_DISARMED = 4  # the vehicle disarmed in flight without being asked
+
+#: ``ended_by`` -> exit code; anything not listed (every watchdog, signal, internal_error) is EXIT_ABORTED
+EXIT_CODES: dict[str, int] = {
+    "completed": EXIT_COMPLETED,
+    "mode_change": EXIT_TAKEN_OVER,
+    "mode_not_entered": EXIT_TAKEN_OVER,
+    "disarmed": EXIT_DISARMED,
+}
+
+#: HEARTBEAT.custom_mode -> name, for reasons (PX4: main << 16 | sub << 24; ArduPilot Copter: the number)
+PX4_MODE_NAMES = {
+    1 << 16: "MANUAL",
+    2 << 16: "ALTCTL",
+    3 << 16: "POSCTL",
+    (4 << 16) | (1 << 24): "AUTO.READY",
+    (4 << 16) | (2 << 24): "AUTO.TAKEOFF",
+    (4 << 16) | (3 << 24): "AUTO.LOITER",
+    (4 << 16) | (4 << 24): "AUTO.MISSION",
+    (4 << 16) | (5 << 24): "AUTO.RTL",
+    (4 << 16) | (6 << 24): "AUTO.LAND",
+    (4 << 16) | (8 << 24): "AUTO.FOLLOW_TARGET",
+    (4 << 16) | (9 << 24): "AUTO.PRECLAND",
+    5 << 16: "ACRO",
+    6 << 16: "OFFBOARD",
+    7 << 16: "STABILIZED",
+}
+ARDUPILOT_MODE_NAMES = {
+    0: "STABILIZE",
+    1: "ACRO",
+    2: "ALT_HOLD",
+    3: "AUTO",
+    4: "GUIDED",
+    5: "LOITER",
+    6: "RTL",
+    7: "CIRCLE",
+    9: "LAND",
+    11: "DRIFT",
+    13: "SPORT",
+    15: "AUTOTUNE",
+    16: "POSHOLD",
+    17: "BRAKE",
+    18: "THROW",
+    20: "GUIDED_NOGPS",
+    21: "SMART_RTL",
+}
+
+
+def exit_code(ended_by: str) -> int:
+    """The process exit code for a flight that ended by ``ended_by`` (``FlightResult.ended_by``)."""
+    return EXIT_CODES.get(ended_by, EXIT_ABORTED)
+
+
+def mode_name(flavour: str, custom_mode: int) -> str:
+    """A readable name of a HEARTBEAT custom_mode (the number when unknown)."""
+    names = PX4_MODE_NAMES if flavour == "px4" else ARDUPILOT_MODE_NAMES
+    return names.get(custom_mode, f"custom mode {custom_mode}")
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Why the supervisor ends the flight: ``kind`` (``mode_change``, ``disarmed``, ``mode_not_entered``,
+    ``tracking_error``), a one-line reason, and what the loop does: ``hold`` (hand over to the hold mode) or
+    ``none`` (the vehicle is already out of the loop's hands: stop streaming, request nothing)."""
+
+    kind: str
+    reason: str
+    action: str
+
+
+@dataclass
+class Note:
+    """A STATUSTEXT or a foreign COMMAND_ACK seen during supervision (local time s, kind, text)."""
+
+    t: float
+    kind: str
+    text: str
+
+
+@dataclass
+class Supervisor:
+    """Watches the autopilot's HEARTBEAT, STATUSTEXT and COMMAND_ACK during offboard control (module docstring).
+
+    flavour: ``px4`` / ``ardupilot``; own_ids: our (system, component) as the autopilot addresses its answers;
+    own_systems: further systems of ours, any component (the MAVSDK backend's own instance);
+    tracking_limit_m: the load's position error that ends the flight (m); confirm_s: how long an acknowledged
+    mode may stay unseen in the HEARTBEAT (s).
+    """
+
+    flavour: str
+    own_ids: tuple[int, int]
+    tracking_limit_m: float = 2.0
+    own_systems: tuple[int, ...] = ()
+    confirm_s: float = 3.0
+    notes: list[Note] = field(default_factory=list)
+    foreign_acks: int = 0
+    _expected: int | None = None
+    _since: float = 0.0
+    _confirmed: bool = False
+    _mode: int | None = None
+    _armed: bool | None = None
+
+    # ------------------------------------------------------------------------------------------ control ---
+    def expect(self, custom_mode: int, now: float) -> None:
+        """From now on the vehicle must be armed and in ``custom_mode`` (HEARTBEAT encoding)."""
+        self._expected, self._since, self._confirmed = custom_mode, now, False
+
+    def release(self) -> None:
+        """The loop hands the vehicle back (hold / land requested): stop supervising."""
+        self._expected = None
+
+    @property
+    def active(self) -> bool:
+        """True while a mode is expected."""
+        return self._expected is not None
+
+    # ------------------------------------------------------------------------------------------- input ---
+    def observe(self, msg: Any, now: float) -> None:
+        """One message of the autopilot's system: HEARTBEAT (autopilot component only), STATUSTEXT, COMMAND_ACK;
+        anything else is ignored."""
+        kind = msg.get_type()
+        if kind == "HEARTBEAT":
+            if msg.autopilot == 8:  # MAV_AUTOPILOT_INVALID: a gimbal, camera, companion... not the autopilot
+                return
+            self._mode = int(msg.custom_mode)
+            self._armed = bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
+            if self._expected is not None and self._mode == self._expected and self._armed:
+                self._confirmed = True
+        elif kind == "STATUSTEXT":
+            text = msg.text.decode("ascii", "replace") if isinstance(msg.text, bytes) else str(msg.text)
+            text = text.rstrip("\x00").strip()
+            self.notes.append(Note(now, "statustext", f"STATUSTEXT severity {msg.severity}: {text}"))
+        elif kind == "COMMAND_ACK":
+            ts = getattr(msg, "target_system", 0) or 0
+            tc = getattr(msg, "target_component", 0) or 0
+            if (ts, tc) != (0, 0) and (ts, tc) != self.own_ids and ts not in self.own_systems:
+                self.foreign_acks += 1
+                text = f"command {msg.command} from system {ts} component {tc} acknowledged (result {msg.result})"
+                self.notes.append(Note(now, "foreign_command", text))
+
+    # ------------------------------------------------------------------------------------------ checks ---
+    def check(self, now: float) -> Verdict | None:
+        """A verdict if the vehicle no longer does what the loop asked, else None (cheap: once per tick)."""
+        exp = self._expected
+        if exp is None:
+            return None
+        recent = "; ".join([n.text for n in self.notes if n.t >= self._since][-2:])
+        why = f" (last reports: {recent})" if recent else ""
+        if self._confirmed:
+            if self._armed is False:
+                return Verdict("disarmed", "the vehicle disarmed during offboard control" + why, "none")
+            if self._mode != exp:
+                name = mode_name(self.flavour, self._mode if self._mode is not None else -1)
+                return Verdict(
+                    "mode_change",
+                    f"the vehicle left {mode_name(self.flavour, exp)} for {name} without being asked "
+                    f"(pilot, ground station or failsafe){why}",
+                    "none",
+                )
+            return None
+        if now - self._since > self.confirm_s:
+            seen = "no heartbeat" if self._mode is None else mode_name(self.flavour, self._mode)
+            return Verdict(
+                "mode_not_entered",
+                f"{mode_name(self.flavour, exp)} acknowledged but not shown by the heartbeat within "
+                f"{self.confirm_s:g} s (heartbeat: {seen}, armed {self._armed}){why}",
+                "hold",
+            )
+        return None
+
+    def check_tracking(self, ex: float, ey: float, ez: float) -> Verdict | None:
+        """A verdict if the load's position error (m, model frame) exceeds the limit. A non-finite error is not
+        judged here: a non-finite estimate ends the flight through the divergence watchdog, a non-finite reference
+        sample is replaced by the command mapping's fallback."""
+        e = math.sqrt(ex * ex + ey * ey + ez * ez)
+        if not e > self.tracking_limit_m:  # within the limit, or NaN
+            return None
+        return Verdict(
+            "tracking_error", f"load position error {e:.2f} m above the limit {self.tracking_limit_m:g} m", "hold"
+        )
+
+    def summary(self) -> dict[str, Any]:
+        """The ``supervision`` block of metrics.json."""
+        return {
+            "tracking_limit_m": self.tracking_limit_m,
+            "confirm_s": self.confirm_s,
+            "foreign_command_acks": self.foreign_acks,
+            "statustexts": sum(1 for n in self.notes if n.kind == "statustext"),
+        }
+
+
+__all__ = [
+    "EXIT_ABORTED",
+    "EXIT_CODES",
+    "EXIT_COMPLETED",
+    "EXIT_DISARMED",
+    "EXIT_TAKEN_OVER",
+    "EXIT_USER_ERROR",
+    "Note",
+    "Supervisor",
+    "Verdict",
+    "exit_code",
+    "mode_name",
+]

@@ -1,0 +1,138 @@
+"""``slung compare --scenario NAME [--controllers a,b,...] --out DIR``: the controllers side by side on the same
+runs (``offboard.harness.compare``); docs/compare.md."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from estimators.errors import UserError
+from estimators.model.vehicle import load_vehicle
+from offboard.control.controllers import registry
+from offboard.control.options import Switching, values
+from offboard.harness import compare, compare_mavlink
+from offboard.harness.demo_cli import add_flavor_argument
+from offboard.logs.runlog import SimConfig
+from offboard.outputs import prepare_output_dir, write_atomic
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--scenario", required=True, metavar="NAME", help=f"scenario: {', '.join(compare.COMPARE_SCENARIOS)}"
+    )
+    p.add_argument(
+        "--controllers",
+        metavar="LIST",
+        help=f"comma-separated controllers (default: all: {', '.join(registry.CONTROLLERS)})",
+    )
+    p.add_argument("--vehicle", metavar="FILE", help="vehicle description (TOML); default: the paper's Table 1")
+    p.add_argument(
+        "--estimator",
+        choices=("truth", "kf"),
+        default="kf",
+        help="kf (default): the Kalman filter on simulated sensors; truth: every controller sees the true state",
+    )
+    p.add_argument(
+        "--sensors", choices=("ideal", "px4-typical", "px4-fast"), default="px4-typical", help="sensor models for kf"
+    )
+    p.add_argument("--no-load-sensor", action="store_true", help="no cable-angle sensor (swing from the accelerometer)")
+    p.add_argument("--switching", choices=values(Switching), default="sign", help="switching of the smc law")
+    p.add_argument("--seed", type=int, default=0, help="seed of sensor noise and disturbances")
+    p.add_argument(
+        "--mavlink",
+        action="store_true",
+        help="fly each controller over MAVLink against the bundled emulator (lockstep, Kalman filter on its "
+        "telemetry) instead of simulating it; rest-to-rest and paper only; each flight's folder under DIR/mavlink",
+    )
+    add_flavor_argument(p, "with --mavlink: the autopilot the emulator imitates")
+    p.add_argument("--no-figures", action="store_true", help="write no PNG figures and no report.html")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+
+
+def run(args: argparse.Namespace) -> int:
+    names = registry.parse_list(args.controllers)
+    the_cases = compare.cases(args.scenario)
+    vehicle = load_vehicle(args.vehicle)
+    if args.mavlink:
+        compare_mavlink.check_scenario(args.scenario)
+        if args.estimator != "kf" or args.no_load_sensor:
+            raise UserError("--mavlink flies with the Kalman filter on the emulator's telemetry, cable angle included")
+    out = prepare_output_dir(args.out)
+    config = SimConfig(
+        estimator=args.estimator,
+        sensors=args.sensors if args.estimator == "kf" else None,
+        load_sensor=not args.no_load_sensor,
+        seed=args.seed,
+    )
+    by_case: dict[str, list[compare.CaseResult]] = {}
+    total = len(the_cases) * len(names)
+    done = 0
+    # one line rewritten in place on a terminal; a line per run through a pipe or over MAVLink, whose flights log
+    # their own warnings to stderr and would otherwise land in the middle of the progress line
+    in_place = sys.stderr.isatty() and not args.mavlink
+    for case in the_cases:
+        results = []
+        for name in names:
+            progress = f"  running {case.label}: {name:<15} ({done + 1}/{total})"
+            print("\r" + progress if in_place else progress, end="" if in_place else "\n", file=sys.stderr, flush=True)
+            if args.mavlink:
+                flight = compare_mavlink.demo_args(
+                    case,
+                    args.scenario,
+                    out / "mavlink" / f"{case.scenario.name}-{name}",
+                    flavor=args.flavor,
+                    sensors=args.sensors,
+                    seed=args.seed,
+                    vehicle=args.vehicle,
+                )
+                results.append(compare_mavlink.run_case(case, name, vehicle, flight, switching=args.switching))
+            else:
+                results.append(compare.run_case(case, name, vehicle, config, switching=args.switching))
+            done += 1
+        by_case[case.label] = results
+    if in_place:
+        print("\r" + " " * 70 + "\r", end="", file=sys.stderr, flush=True)
+    for results in by_case.values():
+        print(compare.format_table(results))
+        print()
+    main = by_case[the_cases[0].label]
+    summary = {r.controller: r.figures for r in main}
+    _write_json(out / "compare.json", summary)
+    _write_json(
+        out / "compare_cases.json",
+        {
+            "scenario": args.scenario,
+            "config": {
+                "estimator": args.estimator,
+                "sensors": config.sensors,
+                "load_sensor": config.load_sensor,
+                "mavlink": bool(args.mavlink),
+                "flavor": args.flavor if args.mavlink else None,
+            },
+            "cases": {label: {r.controller: r.figures for r in rs} for label, rs in by_case.items()},
+        },
+    )
+    rows = [r for rs in by_case.values() for r in compare.series_rows(rs)]
+    write_atomic(out / "compare_series.csv", lambda p: _write_csv(p, rows))
+    if not args.no_figures:
+        from offboard.report.compare_report import write_figures
+
+        write_figures(out, by_case)
+    print(f"compare: {out}")
+    return 0
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    text = json.dumps(obj, indent=2, sort_keys=False, allow_nan=False)
+    write_atomic(path, lambda p: p.write_text(text + "\n", encoding="utf-8"))
+
+
+def _write_csv(path: Path, rows: list[list[Any]]) -> None:
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(["case", "controller", *compare.SERIES_COLUMNS])
+        w.writerows(rows)

@@ -1,0 +1,227 @@
+"""The inputs and outputs of ``slung replay`` (``offboard.logs.replay``): the reference a flight used, the live
+loop's own per-tick log (``timeseries_live.csv``) read back, the replay's configuration, its table's columns and
+its result, and the filter's first guess. Model frame (world NWU z up, body FLU), SI units, radians; times in s.
+"""
+
+from __future__ import annotations
+
+import math
+import operator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from estimators.model.control_state import ControlState
+from estimators.model.measurements import Attitude, LoadAngle, PositionVelocity
+from estimators.model.vehicle import Vehicle
+from offboard.logs.estimate_columns import EST_NAMES, INNOVATION_COLUMNS, SIGMA_COLUMNS
+
+
+@dataclass(frozen=True)
+class ReferenceSpec:
+    """The reference a logged flight used: the scenario's name (or a trajectory file). ``start``: the vehicle time
+    (s) at which the reference's t = 0 fell, NaN = at the first replayed tick (ignored with the live run's tick log,
+    whose controller time ``t_ref`` is used). ``origin``: the horizontal shift (m, world NWU) the live loop added
+    to the reference's F_x, F_y, or None to recompute it as the loop does (vehicle position at the start minus
+    the reference's start). ``ground_z``: the local z (model frame, m) of the take-off point the live loop added to
+    the reference's heights (``metrics.json`` ``config.ground_z``; 0 for logs from before it was recorded)."""
+
+    scenario: str
+    start: float = math.nan
+    origin: tuple[float, float] | None = None
+    trajectory: str | None = None
+    ground_z: float = 0.0
+
+    def build(self) -> Any:
+        """The reference object (``offboard.control.reference``): the named scenario's or the trajectory file's."""
+        if self.trajectory is not None:
+            from offboard.control.trajectory_file import load_trajectory_file
+
+            return load_trajectory_file(self.trajectory)
+        from offboard.control.scenarios import make_scenario
+
+        return make_scenario(self.scenario).reference
+
+
+class LiveLogMismatchError(ValueError):
+    """The live tick log given to the replay does not belong to the tlog."""
+
+
+@dataclass(frozen=True)
+class LiveRun:
+    """The live loop's own per-tick log (``timeseries_live.csv`` of ``slung fly`` / ``slung demo``; columns of
+    ``offboard.flight.loop.LIVE_COLUMNS``): tick vehicle time ``t_vehicle`` (s), controller time ``t_ref`` (s),
+    cumulative number of measurements pushed to the estimator ``n_meas``, the estimate the controller used (N x 24,
+    order :data:`EST_COLUMNS`) and the setpoint's wire fields (N x 8 attitude / N x 4 actuator, full precision)."""
+
+    t_vehicle: np.ndarray
+    t_ref: np.ndarray
+    n_meas: np.ndarray
+    est: np.ndarray
+    sp: np.ndarray
+
+
+LIVE_EST_NAMES = EST_NAMES  # the loop's estimate columns, read back
+
+
+def load_live_table(path: Any) -> LiveRun | None:
+    """The :class:`LiveRun` in the CSV at ``path``, or None when the file is missing, lacks a needed column or has
+    a row of another width. Only the needed columns are converted (``float`` of each field: the same doubles as
+    ``np.loadtxt``, in a third of its time on the loop's ~70 columns)."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            header = fh.readline().strip().split(",")
+            lines = fh.read().split("\n")
+    except (OSError, ValueError):
+        return None
+    idx = {n: i for i, n in enumerate(header)}
+    need = ["t_vehicle", "t_ref", "n_meas", *("est_" + n for n in LIVE_EST_NAMES), *(f"sp{i}" for i in range(4))]
+    if any(n not in idx for n in need):
+        return None
+    sp_cols = [idx[f"sp{i}"] for i in range(8) if f"sp{i}" in idx]
+    cols = [idx["t_vehicle"], idx["t_ref"], idx["n_meas"], *(idx["est_" + n] for n in LIVE_EST_NAMES), *sp_cols]
+    pick = operator.itemgetter(*cols)
+    width = len(header)
+    values: list[float] = []
+    n = 0
+    try:
+        for line in lines:
+            if not line.strip():
+                continue
+            fields = line.split(",")
+            if len(fields) != width:
+                return None
+            values.extend(map(float, pick(fields)))
+            n += 1
+    except ValueError:
+        return None
+    data = np.array(values, dtype=float).reshape(n, len(cols))
+    ne = len(LIVE_EST_NAMES)
+    sp = data[:, 3 + ne :]
+    if sp.shape[1] >= 8 and np.all(np.isnan(sp[:, 4:8])):
+        sp = sp[:, :4]
+    return LiveRun(data[:, 0], data[:, 1], data[:, 2].astype(int), data[:, 3 : 3 + ne], sp)
+
+
+@dataclass(frozen=True)
+class ReplayConfig:
+    """How to replay.
+
+    vehicle: the controller's nominal vehicle; t_from / t_to: vehicle-time window (s, since boot) or None;
+    rate_hz: tick rate where no setpoints are logged (and the estimator's step when the log does not say);
+    estimator: estimator kind; load_sensor: None = use one when the log has it; delay_s: the estimator's fusion
+    horizon (s); reference: see :class:`ReferenceSpec` (None: no controller); switching / epsilon: the
+    controller's switching function; law: ``"torque"`` (``offboard.control.smc``) or ``"attitude"``
+    (``offboard.control.smc_attitude``), the live run's; gain_scale: the torque-level law's pole scale the live run
+    chose for its measured loop delay (``offboard.control.delay_margin``; 1: the paper's gains); shared_roll_pitch:
+    the live run's torque-level law limited its roll / pitch pair to an X frame's shared motor margin
+    (``offboard.control.smc.ControllerParams``); output / mask: None
+    = from the logged setpoints; mapping: extra ``MappingConfig`` fields (limits); autopilot: ``AutopilotModel`` fields
+    (flavour, attitude_p, rate_bandwidth, hover_thrust_norm, angle_boost; flavour defaults to the HEARTBEAT's);
+    live: the live run's tick log, for an exact replay; estimate_only: run the estimator on the grid over the whole
+    log even where it holds an offboard flight (no controller).
+    """
+
+    vehicle: Vehicle = field(default_factory=Vehicle)
+    t_from: float | None = None
+    t_to: float | None = None
+    rate_hz: float = 250.0
+    estimator: str = "kf"
+    load_sensor: bool | None = None
+    delay_s: float = 0.012
+    reference: ReferenceSpec | None = None
+    switching: str = "smooth"
+    epsilon: float = 1.0
+    law: str = "torque"
+    gain_scale: float = 1.0
+    shared_roll_pitch: bool = False
+    output: str | None = None
+    mask: str | None = None
+    mapping: dict[str, Any] | None = None
+    autopilot: dict[str, Any] | None = None
+    live: LiveRun | None = None
+    estimate_only: bool = False
+
+
+#: the replay's estimate columns: the flat-output chains ``Fx``, ``Fx_d1`` ... ``Fy_d5``, then the live log's names
+EST_COLUMNS: tuple[str, ...] = (
+    *(f"F{ax}" if i == 0 else f"F{ax}_d{i}" for ax in "xy" for i in range(6)),
+    *EST_NAMES[12:],
+)
+
+
+SP_ATT = ("q_w", "q_x", "q_y", "q_z", "roll_rate", "pitch_rate", "yaw_rate", "thrust")
+
+
+SP_ACT = ("roll", "pitch", "yaw", "thrust")
+
+
+def columns_for(output: str) -> tuple[str, ...]:
+    """The time-series columns for setpoint kind ``output`` ("attitude" or "actuator")."""
+    sp = SP_ATT if output == "attitude" else SP_ACT
+    return (
+        "t",
+        "t_ref",
+        "logger_t",
+        "tick_source",
+        *EST_COLUMNS,
+        "meas_alpha_x",
+        "meas_alpha_y",
+        "pos_x",
+        "pos_y",
+        "pos_z",
+        "Fx_ref",
+        "Fy_ref",
+        "z_ref",
+        "psi_ref",
+        "cmd_thrust",
+        "cmd_tau_phi",
+        "cmd_tau_theta",
+        "cmd_tau_psi",
+        *("sp_" + c for c in sp),
+        *("log_" + c for c in sp),
+        "ap_q_w",
+        "ap_q_x",
+        "ap_q_y",
+        "ap_q_z",
+        "ap_thrust",
+        "offboard",
+        "live_est_diff",
+        "live_sp_diff",
+        "ap_phi",
+        "ap_theta",
+        "ap_psi",
+        "segment",
+        "diverged",
+        "gated",
+        *SIGMA_COLUMNS,
+        *INNOVATION_COLUMNS,
+    )
+
+
+@dataclass
+class ReplayResult:
+    """The replayed run: ``data[k, col[name]]`` per tick, the column names and the metrics dictionary;
+    ``swing_truth``: (n, 2) alpha_x, alpha_y of the payload's truth per tick (rad, NaN where unknown), when the log
+    has one (DataFlash SLUP, a payload system's GLOBAL_POSITION_INT)."""
+
+    data: np.ndarray
+    columns: tuple[str, ...]
+    metrics: dict[str, Any]
+    output: str
+    swing_truth: np.ndarray | None = None
+
+    def column(self, name: str) -> np.ndarray:
+        """One column over the ticks."""
+        return self.data[:, self.columns.index(name)]
+
+
+def initial_guess(
+    vehicle: Vehicle, pv: PositionVelocity | None, att: Attitude | None, load: LoadAngle | None
+) -> ControlState:
+    """The estimator's prior as the live loop builds it: :func:`offboard.flight.loop.initial_guess` (position and
+    velocity, attitude, swing from the cable-angle sensor, 0 without one; every rate not measured is 0)."""
+    from offboard.flight.loop import initial_guess as live_initial_guess
+
+    return live_initial_guess(vehicle, att, pv, load)

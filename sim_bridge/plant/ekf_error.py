@@ -1,0 +1,197 @@
+"""The emulated autopilot's position / velocity estimate error: EKF-like, wandering, with a local origin offset.
+
+A real autopilot's estimate (PX4's EKF2 fusing GPS, baro, magnetometer and IMU) is not the truth plus white
+noise: its error wanders over seconds (GPS random walk and the filter's own dynamics), the velocity error goes
+with it, and the local frame's origin is where the estimator started, not the ground (PX4 SITL's SIH: the ground
+sat between about -0.8 and +0.6 m local z). This module models that, per axis, as a second-order Gauss-Markov
+process: a velocity error ``v`` (first-order, time constant ``tau_v``) integrated into a position error ``e`` that
+decays with ``tau_p``::
+
+    v' = -v / tau_v + w,      e' = v - e / tau_p
+
+scaled so that ``e`` has the standard deviation ``sigma`` (its velocity then has ``sigma sqrt((tau_p + tau_v) /
+(tau_p^2 tau_v))``), plus, in the air, a white noise on the height (PX4's EKF2 fuses zero velocity while landed,
+so its height scatters by millimetres on the ground and by centimetres in flight, where the barometer drives it).
+Everything the autopilot does with its position (its own hold, take-off, landing, position setpoints) uses the
+estimate, as a real one does. Its attitude loops fly an attitude estimate whose roll and pitch wander about the
+truth (first-order Gauss-Markov, ``tilt_sigma_rad``: a behavioural stand-in for EKF2's tilt error, not its
+mechanism), and (PX4) a gyro with the preset's white noise (``gyro_sigma_rad_s``: SIH's); with both, the truth's
+step response jitters about its top as PX4 SITL's does (docs/emulator.md, calibration). Not modelled: the heading
+error (PX4 SITL's EKF2 was off the truth by 1.4-2.3 deg of tilt and 10-16 deg of heading in hovers on a loaded
+machine, ``docs/model.md`` section 12.2).
+
+The ground's local z (``ground_local_z_m``, NED, m) is drawn once, uniform in ``origin_z_range_m``; it shifts
+LOCAL_POSITION_NED, ODOMETRY, HOME_POSITION and SET_POSITION_TARGET_LOCAL_NED's z and nothing else (heights
+above home, GLOBAL_POSITION_INT's relative altitude, stay ground-relative). Magnitudes: ``docs/emulator.md``
+(calibrated against PX4 SITL with ``bench/calibrate_emulator_px4.py``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class EkfErrorSpec:
+    """The estimator model's constants (per direction: horizontal, vertical).
+
+    gps_sigma_m: GPS position noise (1 sigma, m), Gauss-Markov with time constant gps_tau_s; gps_delay_s: how
+    old a GPS sample is when the estimator fuses it as current (an uncompensated delay); gps_hz: GPS rate;
+    gain_p, gain_v: the estimator's correction per GPS sample of position (fraction) and velocity (1/s) from
+    the position residual; accel_sigma_m_s2: white noise of the accelerometer the prediction integrates;
+    origin_z_range_m: range of the ground's local NED z (uniform); air_white_v_m: white noise on the height in the
+    air (1 sigma, m, a new draw at every step of the model); reported_accuracy_m: the horizontal and vertical
+    position accuracy the autopilot reports in ESTIMATOR_STATUS (1 sigma, m); gyro_sigma_rad_s: white noise of
+    the gyro the autopilot's rate loop flies on (1 sigma per 250 Hz sample, rad/s, body FRD roll / pitch / yaw;
+    PX4 only: the emulated rate loop otherwise sees the true rates); tilt_sigma_rad, tilt_tau_s: the attitude
+    estimate's roll and pitch error in the air (1 sigma, rad; first-order Gauss-Markov with these time constants;
+    on the ground it relaxes to zero with the same time constants).
+    """
+
+    gps_sigma_m: tuple[float, float]
+    gps_tau_s: float
+    gps_delay_s: tuple[float, float]
+    gps_hz: float
+    gain_p: tuple[float, float]
+    gain_v: tuple[float, float]
+    accel_sigma_m_s2: float
+    origin_z_range_m: tuple[float, float]
+    air_white_v_m: float = 0.0
+    reported_accuracy_m: tuple[float, float] = (0.0, 0.0)
+    gyro_sigma_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    tilt_sigma_rad: tuple[float, float] = (0.0, 0.0)
+    tilt_tau_s: tuple[float, float] = (1.0, 1.0)
+
+
+#: Presets of ``--ekf``: ``none`` reports the truth; ``px4-sih`` behaves as PX4 SITL's SIH + EKF2 did
+#: (docs/emulator.md, "Calibration against PX4 SITL").
+EKF_PRESETS: dict[str, EkfErrorSpec | None] = {
+    "none": None,
+    "px4-sih": EkfErrorSpec(
+        gps_sigma_m=(0.1, 0.005),
+        gps_tau_s=10.0,
+        gps_delay_s=(0.4, 0.22),
+        gps_hz=5.0,
+        gain_p=(0.1, 0.1),
+        gain_v=(0.2, 0.2),
+        accel_sigma_m_s2=0.05,
+        origin_z_range_m=(-0.8, 0.6),
+        air_white_v_m=0.06,  # PX4 SITL's height in Hold scattered 0.064-0.090 m, 3 mm on the ground
+        reported_accuracy_m=(0.29, 0.03),  # PX4 SITL's ESTIMATOR_STATUS in hover: 0.286-0.293 m, 0.029-0.033 m
+        # SIH's gyro noise in flight (its sensor model: 0.14, 0.07, 0.03 rad/s per 250 Hz sample); PX4's
+        # vehicle_angular_velocity minus the truth scattered 0.083 / 0.041 / 0.017 rad/s after the 40 Hz filter
+        gyro_sigma_rad_s=(0.14, 0.07, 0.03),
+        # EKF2's roll / pitch minus the truth in the air, four PX4 SITL step flights of 2026-12-02 (14 s each):
+        # std 0.016-0.021 / 0.004-0.010 rad, correlation after 1 s 0.74-0.87 / 0.25-0.89, after 2 s 0.37-0.76 /
+        # -0.13-0.56
+        tilt_sigma_rad=(0.019, 0.007),
+        tilt_tau_s=(3.0, 1.5),
+    ),
+}
+
+
+class EkfError:
+    """A per-axis estimator (prediction with the measured acceleration, correction by a delayed, noisy GPS);
+    its error is what the autopilot believes minus the truth. Model frame (NWU), m and m/s; seeded by ``rng``.
+
+    :meth:`step` is called with the true state and acceleration at a fixed period; :meth:`position_error` and
+    :meth:`velocity_error` give the current error.
+    """
+
+    def __init__(self, spec: EkfErrorSpec, rng: np.random.Generator) -> None:
+        self.spec = spec
+        self.rng = rng
+        lo, hi = spec.origin_z_range_m
+        #: NED z of the ground in the estimator's local frame, m (the local origin is not the ground)
+        self.ground_local_z_m = float(rng.uniform(lo, hi))
+        sh, sv = spec.gps_sigma_m
+        self.gps_sigma = (sh, sh, sv)
+        self.gps_noise = [float(rng.normal(0.0, s)) for s in self.gps_sigma]  # stationary start
+        self.kp = (spec.gain_p[0], spec.gain_p[0], spec.gain_p[1])
+        self.kv = (spec.gain_v[0], spec.gain_v[0], spec.gain_v[1])
+        self.e = [0.0, 0.0, 0.0]  # position error, m
+        self.ev = [0.0, 0.0, 0.0]  # velocity error, m/s
+        self._hist: deque[tuple[float, tuple[float, float, float]]] = deque()
+        self._t = 0.0
+        self._next_gps = 0.0
+        self._white_v = 0.0  # the height's white noise now (0 on the ground)
+        #: its own generator, so that the estimator's draws are the same with and without it
+        self._white_rng = rng.spawn(1)[0] if spec.air_white_v_m > 0.0 else None
+        self._gyro_rng = rng.spawn(1)[0] if any(v > 0.0 for v in spec.gyro_sigma_rad_s) else None
+        self._tilt_rng = rng.spawn(1)[0] if any(v > 0.0 for v in spec.tilt_sigma_rad) else None
+        self.tilt = [0.0, 0.0]  # the attitude estimate's roll and pitch error, rad (model frame Euler angles)
+
+    def gyro_noise_frd(self) -> tuple[float, float, float]:
+        """A new draw of the gyro's white noise (body FRD, rad/s; zeros without one), one per gyro sample."""
+        if self._gyro_rng is None:
+            return (0.0, 0.0, 0.0)
+        z = self._gyro_rng.standard_normal(3)
+        s = self.spec.gyro_sigma_rad_s
+        return (s[0] * float(z[0]), s[1] * float(z[1]), s[2] * float(z[2]))
+
+    def step(self, dt: float, pos: tuple[float, float, float], on_ground: bool = False) -> None:
+        """Advance ``dt`` s; ``pos``: the true position now (model frame, m); ``on_ground``: landed (no height
+        noise). The prediction integrates the true acceleration plus accelerometer noise, so only the noise and the
+        GPS corrections create error."""
+        sp = self.spec
+        if self._tilt_rng is not None:
+            z = self._tilt_rng.standard_normal(2)
+            for i in range(2):
+                a = math.exp(-dt / sp.tilt_tau_s[i])
+                drive = 0.0 if on_ground else math.sqrt(1.0 - a * a) * sp.tilt_sigma_rad[i] * float(z[i])
+                self.tilt[i] = a * self.tilt[i] + drive
+        if self._white_rng is not None:
+            self._white_v = 0.0 if on_ground else float(self._white_rng.normal(0.0, sp.air_white_v_m))
+        self._t += dt
+        t = self._t
+        sa = sp.accel_sigma_m_s2
+        za = self.rng.standard_normal(3)
+        for i in range(3):
+            self.ev[i] += sa * float(za[i]) * dt
+            self.e[i] += self.ev[i] * dt
+        self._hist.append((t, pos))
+        dmax = max(sp.gps_delay_s)
+        while self._hist and self._hist[0][0] < t - dmax - 1.0:
+            self._hist.popleft()
+        if t + 1e-9 < self._next_gps:
+            return
+        gdt = 1.0 / sp.gps_hz
+        self._next_gps = t + gdt
+        # the horizontal sample fused now was taken gps_delay_s[0] ago, the vertical one gps_delay_s[1] ago
+        old_h = old_v = self._hist[0][1]
+        for tt, pp in self._hist:
+            if tt <= t - sp.gps_delay_s[0]:
+                old_h = pp
+            if tt <= t - sp.gps_delay_s[1]:
+                old_v = pp
+            else:
+                break
+        old = (old_h[0], old_h[1], old_v[2])
+        a = math.exp(-gdt / sp.gps_tau_s)
+        q = math.sqrt(1.0 - a * a)
+        zg = self.rng.standard_normal(3)
+        for i in range(3):
+            self.gps_noise[i] = a * self.gps_noise[i] + q * self.gps_sigma[i] * float(zg[i])
+            est = pos[i] + self.e[i]
+            resid = old[i] + self.gps_noise[i] - est
+            self.e[i] += self.kp[i] * resid
+            self.ev[i] += self.kv[i] * resid
+
+    def position_error(self) -> tuple[float, float, float]:
+        """Current position error (model frame NWU, m)."""
+        return (self.e[0], self.e[1], self.e[2] + self._white_v)
+
+    def tilt_error(self) -> tuple[float, float]:
+        """Current roll and pitch error of the attitude estimate (model frame ZYX Euler angles, rad)."""
+        return (self.tilt[0], self.tilt[1])
+
+    def velocity_error(self) -> tuple[float, float, float]:
+        """Current velocity error (model frame NWU, m/s)."""
+        return (self.ev[0], self.ev[1], self.ev[2])
+
+
+__all__ = ["EKF_PRESETS", "EkfError", "EkfErrorSpec"]

@@ -1,0 +1,285 @@
+"""Start and stop a real PX4 SITL autopilot (the prebuilt build with its SIH quadrotor, ``shared/px4-sitl``).
+
+This is a test and benchmark harness, not the flight path: ``slung fly`` talks to whatever autopilot listens on
+the link; this module only starts one on this machine. The real PX4 is the reference the emulator imitates.
+
+Where the SITL is
+    ``$SLUNG_PX4_SITL`` if set, else ``<repo>/../shared/px4-sitl`` (the folder holding ``bin/px4`` and ``etc``;
+    also looked for beside the folders further up, for git worktrees).
+    :func:`find_px4_sitl` returns None (with :func:`why_no_px4_sitl` saying why) when it is absent.
+
+Why a private bin folder
+    PX4's startup script calls its modules through command aliases (``px4-param``, ``px4-commander``, ...), which
+    a PX4 build makes as symlinks to ``px4``. In the shipped folder they were flattened into 3-byte text files
+    holding ``px4`` (not executable), so the script fails with ``px4-param: Permission denied``. Each
+    :class:`Px4Sitl` makes ``WORKDIR/bin`` where every such alias is a symlink to the real ``bin/px4`` and the other
+    files (``px4-alias.sh``) are copies, and puts it first on the PATH of the PX4 process.
+
+Instances
+    ``INSTANCE`` i (0-9) shifts every port by i: PX4 sends the offboard link to 127.0.0.1:14540+i (so the
+    companion listens there: :attr:`Px4Sitl.connection_url` is ``udpin:127.0.0.1:14540+i``) and is system i+1.
+    Processes that run at the same time need distinct instances.
+
+Lifetime
+    :meth:`Px4Sitl.start` runs ``px4 -d -i INSTANCE -w WORKDIR etc`` in its own process group (so that stopping it
+    reaches every child) with stdout and stderr in ``WORKDIR/px4.log``, and waits for ``Ready for takeoff!``
+    (typically 5-15 s; :class:`Px4SitlError` with the log's tail after ``ready_timeout_s``). :meth:`Px4Sitl.stop`
+    sends SIGTERM to the group, then SIGKILL after ``stop_timeout_s``. Used as a context manager it stops on exit.
+    The ULog flight logs (one per arming) are under ``WORKDIR/log``: :meth:`Px4Sitl.ulogs`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+
+#: environment variable naming the SITL folder (``bin/px4``, ``etc``)
+ENV_SITL = "SLUNG_PX4_SITL"
+#: what PX4 prints when it is ready to arm
+READY_TEXT = "Ready for takeoff!"
+#: the SIH quadrotor of the build (airframe 10040)
+SIH_MODEL = "sihsim_quadx"
+#: the port PX4 instance 0 sends its offboard (onboard-mode) MAVLink stream to; instance i adds i
+OFFBOARD_PORT_BASE = 14540
+
+
+class Px4SitlError(RuntimeError):
+    """PX4 SITL could not be started or did not become ready (the message includes the log's tail)."""
+
+
+def default_sitl_path() -> Path:
+    """``$SLUNG_PX4_SITL``, else ``<repo>/../shared/px4-sitl``, looked for beside each folder above the repository
+    (a git worktree at ``work/wt/NAME`` finds ``work/shared/px4-sitl``); the first candidate when none exists."""
+    env = os.environ.get(ENV_SITL)
+    if env:
+        return Path(env)
+    repo = Path(__file__).resolve().parents[1]
+    candidates = [parent / "shared" / "px4-sitl" for parent in repo.parents]
+    return next((c for c in candidates if (c / "bin" / "px4").is_file()), candidates[0])
+
+
+def why_no_px4_sitl(root: Path | None = None) -> str | None:
+    """None when a usable SITL is at ``root`` (default :func:`default_sitl_path`), else the reason it is not."""
+    root = default_sitl_path() if root is None else root
+    exe = root / "bin" / "px4"
+    if not exe.is_file():
+        return f"no PX4 SITL binary at {exe} (set ${ENV_SITL} to the px4-sitl folder)"
+    if not os.access(exe, os.X_OK):
+        return f"{exe} is not executable"
+    if not (root / "etc" / "init.d-posix" / "rcS").is_file():
+        return f"{root / 'etc'} holds no PX4 startup script (init.d-posix/rcS)"
+    return None
+
+
+def find_px4_sitl(root: Path | None = None) -> Path | None:
+    """The SITL folder when usable, else None (see :func:`why_no_px4_sitl`)."""
+    root = default_sitl_path() if root is None else root
+    return None if why_no_px4_sitl(root) is not None else root
+
+
+def make_bin_dir(sitl_bin: Path, dest: Path) -> Path:
+    """``dest`` holding a symlink to ``sitl_bin/px4`` for every alias file whose content is ``px4`` (or which already
+    is a symlink) and a copy of every other file; returns ``dest``."""
+    dest.mkdir(parents=True, exist_ok=True)
+    real = (sitl_bin / "px4").resolve()
+    for src in sorted(sitl_bin.iterdir()):
+        target = dest / src.name
+        if target.exists() or target.is_symlink():
+            continue
+        alias = src.name.startswith("px4-") and (src.is_symlink() or _is_flattened_alias(src))
+        if src.name == "px4" or alias:
+            target.symlink_to(real)
+        elif src.is_file():
+            shutil.copy2(src, target)
+    return dest
+
+
+def _is_flattened_alias(path: Path) -> bool:
+    try:
+        return path.stat().st_size < 16 and path.read_bytes().strip() == b"px4"
+    except OSError:
+        return False
+
+
+@dataclass
+class Px4Sitl:
+    """One PX4 SITL instance with the SIH quadrotor (see the module docstring).
+
+    instance: 0-9 (ports and system id shift by it); workdir: parameters, dataman, logs (a new temporary folder
+    when None, kept after stop so that the ULogs can be read; removed by :meth:`cleanup`); params: parameters set at
+    start through the environment hook PX4's rcS reads (``PX4_PARAM_<NAME>``), e.g. ``{"COM_OBL_RC_ACT": 5}``.
+    """
+
+    instance: int = 0
+    workdir: Path | None = None
+    root: Path | None = None
+    ready_timeout_s: float = 60.0
+    stop_timeout_s: float = 10.0
+    params: dict[str, float] = field(default_factory=dict)
+    _proc: subprocess.Popen[bytes] | None = field(default=None, init=False, repr=False)
+    _own_workdir: bool = field(default=False, init=False, repr=False)
+    _log_fh: object = field(default=None, init=False, repr=False)
+    ready_after_s: float | None = field(default=None, init=False)
+    #: local monotonic time (s) at which the PX4 process was started: PX4's boot clock (ULog timestamps,
+    #: MAVLink time_boot_ms) runs from about then, in real time (SIH is not lockstepped)
+    started_monotonic: float | None = field(default=None, init=False)
+
+    def __post_init__(self) -> None:
+        if not (0 <= self.instance <= 9):
+            raise ValueError(f"PX4 SITL instance must be 0..9, got {self.instance}")
+
+    # ------------------------------------------------------------------------------------------ facts ---
+    @property
+    def connection_url(self) -> str:
+        """The companion computer's side of the offboard link (``slung fly --connect``)."""
+        return f"udpin:127.0.0.1:{OFFBOARD_PORT_BASE + self.instance}"
+
+    @property
+    def system_id(self) -> int:
+        """MAVLink system id of this instance (instance + 1)."""
+        return self.instance + 1
+
+    @property
+    def log_path(self) -> Path:
+        """PX4's console output (stdout and stderr)."""
+        assert self.workdir is not None, "start() first"
+        return self.workdir / "px4.log"
+
+    def ulogs(self) -> list[Path]:
+        """The ULog files written so far (one per arming), oldest first."""
+        if self.workdir is None:
+            return []
+        return sorted((self.workdir / "log").glob("*/*.ulg"), key=lambda p: (p.stat().st_mtime, p.name))
+
+    def log_text(self) -> str:
+        """PX4's console output so far."""
+        try:
+            return self.log_path.read_text(encoding="utf-8", errors="replace")
+        except (OSError, AssertionError):
+            return ""
+
+    @property
+    def running(self) -> bool:
+        """Whether the PX4 process is alive."""
+        return self._proc is not None and self._proc.poll() is None
+
+    # -------------------------------------------------------------------------------------- lifetime ---
+    def start(self) -> Px4Sitl:
+        """Start PX4 and wait until it is ready for take-off; :class:`Px4SitlError` if it is absent or not ready."""
+        root = self.root or default_sitl_path()
+        why = why_no_px4_sitl(root)
+        if why is not None:
+            raise Px4SitlError(why)
+        self.root = root
+        if self.workdir is None:
+            self.workdir = Path(tempfile.mkdtemp(prefix=f"slung-px4-{self.instance}-"))
+            self._own_workdir = True
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        bin_dir = make_bin_dir(root / "bin", self.workdir / "bin")
+        env = dict(os.environ)
+        env.update(
+            PATH=f"{bin_dir}{os.pathsep}{env.get('PATH', '')}",
+            PX4_SIM_MODEL=SIH_MODEL,
+            PX4_SIMULATOR="sihsim",
+        )
+        for name, value in self.params.items():
+            env[f"PX4_PARAM_{name}"] = repr(value) if isinstance(value, float) else str(value)
+        self._log_fh = open(self.log_path, "wb", buffering=0)  # noqa: SIM115 - closed in stop()
+        t0 = time.monotonic()
+        self.started_monotonic = t0
+        self._proc = subprocess.Popen(
+            [str(bin_dir / "px4"), "-d", "-i", str(self.instance), "-w", str(self.workdir), str(root / "etc")],
+            cwd=self.workdir,
+            env=env,
+            stdin=subprocess.DEVNULL,
+            stdout=self._log_fh,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+        try:
+            self._wait_ready(t0)
+        except BaseException:
+            self.stop()
+            raise
+        self.ready_after_s = time.monotonic() - t0
+        return self
+
+    def _wait_ready(self, t0: float) -> None:
+        assert self._proc is not None
+        while time.monotonic() - t0 < self.ready_timeout_s:
+            if READY_TEXT in self.log_text():
+                return
+            if self._proc.poll() is not None:
+                raise Px4SitlError(
+                    f"PX4 SITL instance {self.instance} exited with code {self._proc.returncode} before it was "
+                    f"ready; log {self.log_path}: {self._tail()}"
+                )
+            time.sleep(0.1)
+        raise Px4SitlError(
+            f"PX4 SITL instance {self.instance} not ready within {self.ready_timeout_s:g} s; "
+            f"log {self.log_path}: {self._tail()}"
+        )
+
+    def _tail(self, lines: int = 5) -> str:
+        return " | ".join(self.log_text().strip().splitlines()[-lines:])
+
+    def stop(self) -> int | None:
+        """SIGTERM to PX4's process group, SIGKILL after ``stop_timeout_s``; the exit code (None if never started).
+        Idempotent."""
+        proc = self._proc
+        code = None
+        if proc is not None:
+            if proc.poll() is None:
+                self._signal_group(proc, signal.SIGTERM)
+                try:
+                    proc.wait(self.stop_timeout_s)
+                except subprocess.TimeoutExpired:
+                    self._signal_group(proc, signal.SIGKILL)
+                    proc.wait(5.0)
+            else:
+                self._signal_group(proc, signal.SIGKILL)  # children left by a dead parent
+            code = proc.returncode
+        fh = self._log_fh
+        if fh is not None:
+            fh.close()  # type: ignore[attr-defined]
+            self._log_fh = None
+        return code
+
+    @staticmethod
+    def _signal_group(proc: subprocess.Popen[bytes], sig: int) -> None:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(proc.pid, sig)  # start_new_session: the group id is the PX4 process' id
+
+    def cleanup(self) -> None:
+        """Stop and remove the working folder if this object made it."""
+        self.stop()
+        if self._own_workdir and self.workdir is not None:
+            shutil.rmtree(self.workdir, ignore_errors=True)
+
+    def __enter__(self) -> Px4Sitl:
+        return self.start() if not self.running else self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.stop()
+
+
+__all__ = [
+    "ENV_SITL",
+    "READY_TEXT",
+    "Px4Sitl",
+    "Px4SitlError",
+    "default_sitl_path",
+    "find_px4_sitl",
+    "make_bin_dir",
+    "why_no_px4_sitl",
+]

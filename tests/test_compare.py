@@ -1,0 +1,66 @@
+"""slung compare: the table's figures on the rest-to-rest move, and the command's outputs."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from estimators.errors import UserError
+from estimators.model.vehicle import Vehicle
+from offboard.harness import compare, compare_cli
+from offboard.logs.runlog import SimConfig
+
+
+def test_smc_beats_the_stock_cascade_on_the_fast_move_and_meets_the_swing_bound() -> None:
+    """3 m in 2.5 s (true state): the sliding-mode law's residual swing is at most a fifth of the swing-unaware
+    cascade's, and its peak swing within 1.5x of atan(a_max / g) of the reference."""
+    case = compare.cases("rest-to-rest")[0]
+    assert case.move_time == 2.5
+    smc = compare.run_case(case, "smc", Vehicle(), SimConfig()).figures
+    cascade = compare.run_case(case, "cascade", Vehicle(), SimConfig()).figures
+    assert smc["completed"] and cascade["completed"]
+    assert smc["residual_swing_rad"] <= cascade["residual_swing_rad"] / 5.0
+    assert smc["peak_swing_rad"] <= 1.5 * smc["lower_bound_rad"]
+    assert math.isclose(smc["lower_bound_rad"], cascade["lower_bound_rad"])
+    assert smc["bang_bang_bound_rad"] < smc["lower_bound_rad"]  # any move of 3 m in 2.5 s needs less than this one
+    assert smc["tracking_rms_m"] < cascade["tracking_rms_m"]
+
+
+def test_compare_writes_the_table_json_and_series(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    p = argparse.ArgumentParser()
+    compare_cli.configure(p)
+    args = p.parse_args(
+        [
+            "--scenario",
+            "gust",
+            "--controllers",
+            "smc,cascade",
+            "--estimator",
+            "truth",
+            "--no-figures",
+            "--out",
+            str(tmp_path),
+        ]
+    )
+    assert compare_cli.run(args) == 0
+    captured = capsys.readouterr()
+    table = captured.out
+    assert "smc" in table and "cascade" in table and "resid rad" in table
+    # stderr is not a terminal here: the progress is a line per run, no carriage returns to garble a log
+    progress = captured.err.splitlines()
+    assert "\r" not in captured.err and len([x for x in progress if x.strip().startswith("running ")]) == 2
+    data = json.loads((tmp_path / "compare.json").read_text())
+    assert set(data) == {"smc", "cascade"}
+    for figs in data.values():
+        for key in ("peak_swing_rad", "residual_swing_rad", "settle_s", "tracking_rms_m", "overshoot_m"):
+            assert key in figs
+        assert figs["peak_swing_rad"] > 0.005  # the gust moved the load
+    series = (tmp_path / "compare_series.csv").read_text().splitlines()
+    assert series[0].startswith("case,controller,t,alpha")
+    assert len(series) > 100
+    with pytest.raises(UserError):
+        compare.cases("slalom")

@@ -1,0 +1,240 @@
+"""The emulator's PX4 inner loops (sim_bridge.inner.px4_inner), its EKF-like estimate (sim_bridge.plant.ekf_error) and
+its API (sim_bridge.emulator_api): PX4's structure, checked against hand-derived values."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from estimators.errors import UserError
+from estimators.model.frames import euler_to_quaternion
+from estimators.model.vehicle import load_vehicle, named_vehicles
+from sim_bridge.emulator_api import EmulatorConfig, EmulatorTruth, build_emulator
+from sim_bridge.inner.px4_inner import QUAD_X, Px4Allocator, Px4AttitudeControl, Px4Motors, Px4RateControl, Px4RateGains
+from sim_bridge.modes.flavors import px4_gain_scale, px4_params
+from sim_bridge.plant.dynamics import make_state
+from sim_bridge.plant.ekf_error import EKF_PRESETS, EkfError
+
+SIH = load_vehicle("px4-sih")
+
+
+def test_px4_sih_vehicle_is_shipped_with_the_sih_constants() -> None:
+    assert "px4-sih" in named_vehicles()
+    assert SIH.mass_vehicle == 1.0 and SIH.inertia == (0.025, 0.025, 0.030) and SIH.motor_thrust_max == 5.0
+    assert SIH.arm_length / math.sqrt(2.0) == pytest.approx(0.2)  # SIH_L_ROLL: the perpendicular arm
+    assert SIH.hover_thrust_normalized == pytest.approx(0.49, abs=0.001)
+    # PX4's stock rate gains hold for SIH's vehicle; another vehicle gets them scaled to the same dynamics
+    assert px4_gain_scale(SIH) == pytest.approx((1.0, 1.0))
+    p = px4_params(SIH)
+    assert (p["MC_ROLLRATE_P"].value, p["MC_ROLLRATE_I"].value, p["MC_ROLLRATE_D"].value) == (0.15, 0.2, 0.003)
+    assert p["MC_ROLL_P"].value == 4.0 and p["MC_YAW_WEIGHT"].value == 0.4 and p["CA_ROTOR2_KM"].value == -0.05
+
+
+def test_allocator_normalization_is_pxs_for_the_sih_quad() -> None:
+    a = Px4Allocator(QUAD_X)
+    # same scale on roll and pitch: a unit command moves each motor by 1/sqrt(2); yaw to +-1; thrust share 1
+    assert [abs(v) for v in a.m_roll] == pytest.approx([1 / math.sqrt(2)] * 4)
+    assert [abs(v) for v in a.m_pitch] == pytest.approx([1 / math.sqrt(2)] * 4)
+    assert [abs(v) for v in a.m_yaw] == pytest.approx([1.0] * 4)
+    assert a.m_thrust == pytest.approx([1.0] * 4)
+    # so the unit roll torque of the physical vehicle is 2 f_max d = 2.83 N m (not the hover-margin 1.96 N m)
+    m = Px4Motors(SIH, QUAD_X, 0.001)
+    m.command(a.allocate((0.1, 0.0, 0.0), 0.5))
+    m.f = list(m.cmd)  # the motors have reached their commands
+    t, rx, ry, rz = m.wrench_frd()
+    assert t == pytest.approx(10.0) and rx == pytest.approx(0.1 * 2 * 5.0 * SIH.arm_length) and ry == pytest.approx(0)
+    assert rx / 0.1 == pytest.approx(2.828, abs=0.001) and rz == pytest.approx(0.0, abs=1e-9)
+
+
+def test_allocator_saturation_without_and_with_airmode() -> None:
+    # near full thrust, airmode off: the collective is lowered to keep the roll torque
+    a = Px4Allocator(QUAD_X, airmode=0)
+    u = a.allocate((0.5, 0.0, 0.0), 0.9)
+    assert max(u) <= 1.0 and min(u) >= 0.0
+    assert sum(u) / 4 < 0.9 and a.unallocated[0] == pytest.approx(0.0, abs=1e-9)
+    # near zero thrust, airmode off: the collective is never raised, so the roll torque is cut
+    u = a.allocate((0.5, 0.0, 0.0), 0.1)
+    assert sum(u) / 4 <= 0.1 + 1e-9 and a.unallocated[0] > 0.1
+    # with roll / pitch airmode the collective rises to deliver it
+    b = Px4Allocator(QUAD_X, airmode=1)
+    u = b.allocate((0.5, 0.0, 0.0), 0.1)
+    assert sum(u) / 4 > 0.1 and b.unallocated[0] == pytest.approx(0.0, abs=1e-6)
+    # yaw comes last: a large yaw command at hover is reduced, roll kept
+    u = a.allocate((0.3, 0.0, 1.0), 0.5)
+    assert a.unallocated[0] == pytest.approx(0.0, abs=1e-9) and a.unallocated[2] > 0.1
+
+
+def test_attitude_control_is_reduced_attitude_with_yaw_weight() -> None:
+    c = Px4AttitudeControl()
+    c.set_gains(4.0, 4.0, 2.8, 0.4)
+    level = euler_to_quaternion(0.0, 0.0, 0.0)
+    r = c.update(level, euler_to_quaternion(0.2, 0.0, 0.0))
+    assert r[0] == pytest.approx(4.0 * 2.0 * math.sin(0.1)) and r[1] == pytest.approx(0.0) and r[2] == pytest.approx(0)
+    # a pure yaw error keeps MC_YAW_P (the gain is divided by the weight that scales the error)
+    r = c.update(level, euler_to_quaternion(0.0, 0.0, 0.2))
+    assert r[2] == pytest.approx(2.8 / 0.4 * 2.0 * math.sin(0.4 * 0.1), rel=1e-9)
+    # roll + yaw: the roll part is the full reduced-attitude error, the yaw part weighted down
+    both = c.update(level, euler_to_quaternion(0.2, 0.0, 0.5))
+    assert abs(both[0]) > 0.7 and abs(both[2]) < 2.8 * 0.5 + 1e-9
+    # rate limits
+    c.rate_limit = [1.0, 1.0, 0.5]
+    r = c.update(level, euler_to_quaternion(1.0, 0.0, 1.0))
+    assert abs(r[0]) <= 1.0 and abs(r[2]) <= 0.5
+
+
+def test_rate_control_integrator_limit_saturation_and_landed() -> None:
+    rc = Px4RateControl(500.0)
+    rc.set_gains(Px4RateGains(int_lim=(0.1, 0.1, 0.1)))
+    for _ in range(5000):
+        rc.update((1.0, 0.0, 0.0), (0.0, 0.0, 0.0), landed=False)
+    assert rc.integ[0] == pytest.approx(0.1)  # held at MC_RR_INT_LIM
+    rc.reset_integral()
+    rc.sat_pos = [True, False, False]  # the allocator could not give more positive roll
+    for _ in range(100):
+        rc.update((1.0, 0.0, 0.0), (0.0, 0.0, 0.0), landed=False)
+    assert rc.integ[0] == 0.0
+    rc.sat_pos = [False, False, False]
+    for _ in range(100):
+        rc.update((1.0, 0.0, 0.0), (0.0, 0.0, 0.0), landed=True)
+    assert rc.integ[0] == 0.0  # no integration on the ground
+    # D acts on the measurement: a rate setpoint step gives no derivative kick, a gyro step does
+    rc2 = Px4RateControl(500.0, gyro_cutoff_hz=0.0, dgyro_cutoff_hz=0.0)
+    rc2.set_gains(Px4RateGains(p=(0.0, 0.0, 0.0), i=(0.0, 0.0, 0.0), d=(0.01, 0.0, 0.0)))
+    rc2.update((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), True)
+    assert rc2.update((5.0, 0.0, 0.0), (0.0, 0.0, 0.0), True)[0] == 0.0
+    assert rc2.update((5.0, 0.0, 0.0), (0.1, 0.0, 0.0), True)[0] == pytest.approx(-0.01 * 0.1 * 500.0)
+
+
+def test_ekf_error_origin_offset_and_wander_are_seeded() -> None:
+    spec = EKF_PRESETS["px4-sih"]
+    assert spec is not None
+
+    def run(seed: int) -> tuple[float, np.ndarray]:
+        e = EkfError(spec, np.random.default_rng(seed))
+        out = []
+        for _ in range(3000):  # 30 s at rest at 100 Hz
+            e.step(0.01, (0.0, 0.0, 0.0))
+            out.append(e.position_error())
+        return e.ground_local_z_m, np.array(out)
+
+    z0, a = run(1)
+    z0b, b = run(1)
+    z0c, c = run(2)
+    assert z0 == z0b and np.array_equal(a, b) and z0 != z0c and not np.array_equal(a, c)
+    assert -0.8 <= z0 <= 0.6 and -0.8 <= z0c <= 0.6
+    h = float(np.std(a[:, 0]))
+    assert 0.005 < h < 0.5  # it wanders, by centimetres to decimetres at rest
+    offsets = [EkfError(spec, np.random.default_rng(s)).ground_local_z_m for s in range(200)]
+    assert min(offsets) < -0.6 and max(offsets) > 0.4  # the whole documented range is used
+
+
+def test_ekf_error_height_scatters_in_the_air_not_on_the_ground() -> None:
+    """PX4's EKF2 height: millimetres while landed, centimetres in the air (docs/emulator.md calibration); the white
+    height noise has its own generator, so the wandering error is the same draw with and without it."""
+    spec = EKF_PRESETS["px4-sih"]
+    assert spec is not None and spec.air_white_v_m > 0.0
+    quiet = replace(spec, air_white_v_m=0.0)
+
+    def heights(s, on_ground: bool) -> np.ndarray:
+        e = EkfError(s, np.random.default_rng(3))
+        out = []
+        for _ in range(2000):
+            e.step(0.01, (0.0, 0.0, 2.0), on_ground)
+            out.append(e.position_error()[2])
+        return np.array(out)
+
+    ground, air, air_quiet = heights(spec, True), heights(spec, False), heights(quiet, False)
+    assert np.array_equal(ground, heights(quiet, True))  # on the ground the white noise is off, same draws
+    assert float(np.std(ground)) < 0.02
+    assert float(np.std(air - air_quiet)) == pytest.approx(spec.air_white_v_m, rel=0.1)
+
+
+def test_config_validates_and_truth_is_a_typed_copy() -> None:
+    with pytest.raises(UserError, match="--ekf"):
+        EmulatorConfig(ekf="kalman").validate()
+    with pytest.raises(UserError, match="flavor"):
+        EmulatorConfig(flavor="betaflight").validate()
+    emu, ap, link = build_emulator(EmulatorConfig(vehicle="px4-sih", mavlink=("udpout:127.0.0.1:9",), ekf="px4-sih"))
+    try:
+        emu.step(50)
+        tr = emu.truth()
+        assert isinstance(tr, EmulatorTruth) and tr.time_s == pytest.approx(0.05)
+        assert tr.on_ground and tr.position_m == (0.0, 0.0, 0.0) and len(tr.state) == 18
+        assert ap.ekf is not None and -0.8 <= ap.ekf.ground_local_z_m <= 0.6
+        # the autopilot's belief is the estimate, the truth stays the truth
+        assert list(ap.x_true[:3]) == [0.0, 0.0, 0.0] and ap.x[:3] != [0.0, 0.0, 0.0]
+    finally:
+        link.close()
+
+
+def test_ekf_error_tilt_wanders_in_the_air_gyro_noise_is_sihs_and_position_draws_are_unchanged() -> None:
+    """The px4-sih preset's attitude estimate error (roll / pitch Gauss-Markov, in the air) and gyro noise (SIH's,
+    per sample) have their own generators: the position error is the same draw with and without them."""
+    spec = EKF_PRESETS["px4-sih"]
+    assert spec is not None and spec.tilt_sigma_rad[0] > 0.0 and spec.gyro_sigma_rad_s == (0.14, 0.07, 0.03)
+    quiet = replace(spec, tilt_sigma_rad=(0.0, 0.0), gyro_sigma_rad_s=(0.0, 0.0, 0.0))
+
+    def run(s, on_ground: bool, n: int = 20000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        e = EkfError(s, np.random.default_rng(5))
+        tilt, pos, gyro = [], [], []
+        for _ in range(n):  # 200 s at 100 Hz
+            e.step(0.01, (0.0, 0.0, 2.0), on_ground)
+            tilt.append(e.tilt_error())
+            pos.append(e.position_error())
+            gyro.append(e.gyro_noise_frd())
+        return np.array(tilt), np.array(pos), np.array(gyro)
+
+    tilt, pos, gyro = run(spec, False)
+    _, pos_quiet, gyro_quiet = run(quiet, False)
+    assert np.array_equal(pos, pos_quiet)
+    assert not gyro_quiet.any() and np.std(gyro, axis=0) == pytest.approx(spec.gyro_sigma_rad_s, rel=0.05)
+    assert np.std(tilt, axis=0) == pytest.approx(spec.tilt_sigma_rad, rel=0.35)
+    # it wanders (correlated over its time constant), it is not white
+    r = tilt[:, 0] - tilt[:, 0].mean()
+    lag = int(0.5 * spec.tilt_tau_s[0] / 0.01)
+    assert float(np.corrcoef(r[:-lag], r[lag:])[0, 1]) > 0.3
+    ground, _, _ = run(spec, True, 1000)
+    assert not ground.any()  # no driving noise on the ground (it relaxes from zero to zero)
+
+
+def test_the_px4_autopilot_flies_and_reports_the_estimated_tilt() -> None:
+    _, ap, link = build_emulator(EmulatorConfig(vehicle="px4-sih", mavlink=("udpout:127.0.0.1:9",), ekf="px4-sih"))
+    try:
+        ap.ekf.tilt = [0.03, -0.01]
+        xe = ap._believed([0.0] * 18)
+        assert xe[6] == pytest.approx(0.03) and xe[7] == pytest.approx(-0.01)
+        snap = ap.tel.snapshot(1000, [0.0] * 18, [0.0] * 13, False)
+        assert snap.roll == pytest.approx(0.03, abs=0.02)  # ATTITUDE carries the estimate (plus the preset's noise)
+    finally:
+        link.close()
+
+
+def test_sih_linear_drag_slows_the_vehicle_as_sihs_does() -> None:
+    """px4-sih's ``linear_drag_n_s_m`` (SIH_KDV 1 N per m/s on 1 kg; real PX4's ULog truth fits 0.99): unpowered, in
+    the air, the horizontal velocity decays as exp(-k t / M); the disturbance log keeps the disturbance alone."""
+    emu, _, link = build_emulator(EmulatorConfig(vehicle="px4-sih", mavlink=("udpout:127.0.0.1:9",)))
+    try:
+        assert emu.drag == 1.0
+        emu.input_log = []
+        emu.x = make_state((0.0, 0.0, 50.0), velocity=(2.0, -1.0, 0.0))
+        emu.on_ground = False
+        emu.step(500)  # 0.5 s, disarmed: no thrust
+        tr = emu.truth()
+        decay = math.exp(-0.5 * 1.0 / 1.0)  # the drag is held over each 1 ms step: (1 - 0.001)^500, 2.5e-4 less
+        assert tr.velocity_m_s[0] == pytest.approx(2.0 * decay, rel=5e-4)
+        assert tr.velocity_m_s[1] == pytest.approx(-1.0 * decay, rel=5e-4)
+        assert tr.disturbance[:3] == pytest.approx((-2.0 * decay, 1.0 * decay, -tr.velocity_m_s[2]), rel=2e-3)
+        assert all(v == (0.0,) * 9 for _, v in emu.input_log)
+    finally:
+        link.close()
+    emu, _, link = build_emulator(EmulatorConfig(mavlink=("udpout:127.0.0.1:9",)))  # the paper's vehicle: no drag
+    try:
+        emu.x = make_state((0.0, 0.0, 50.0), velocity=(2.0, 0.0, 0.0))
+        emu.on_ground = False
+        emu.step(100)
+        assert emu.drag == 0.0 and emu.truth().velocity_m_s[0] == 2.0
+    finally:
+        link.close()

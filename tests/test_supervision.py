@@ -1,0 +1,182 @@
+"""Supervision during offboard control (``offboard/flight/supervisor.py``), against the bundled emulator in lockstep
+over real UDP on 127.0.0.1: a foreign ground station's DO_SET_MODE, its forced disarm and a pilot's RC mode switch
+each end the flight with their reason and a non-zero exit code; an acknowledgement of a foreign command is never
+taken for one of ours; the supervisor's rules on their own."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil
+
+from offboard.flight.fly_cli import configure as fly_configure
+from offboard.flight.fly_cli import fly
+from offboard.flight.supervisor import EXIT_ABORTED, EXIT_DISARMED, EXIT_TAKEN_OVER, Supervisor, exit_code
+from offboard.harness.demo_cli import EmulatorThread, free_udp_port
+
+PX4_POSCTL = 3 << 16
+PX4_OFFBOARD = 6 << 16
+MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_COMPONENT_ARM_DISARM = 400
+PX4_FORCE_DISARM = 21196.0
+
+
+def fly_args(port: int, out: Path, *extra: str) -> argparse.Namespace:
+    p = argparse.ArgumentParser()
+    fly_configure(p)
+    return p.parse_args(
+        [
+            *("--connect", f"udpin:127.0.0.1:{port}", "--scenario", "hover", "--duration", "6", "--lockstep"),
+            *("--no-figures", "--out", str(out), *extra),
+        ]
+    )
+
+
+class ForeignStation:
+    """A second MAVLink sender (system 42, a ground station) with its own UDP socket, talking to the emulator's
+    port directly: what it sends never passes through the loop."""
+
+    def __init__(self, emulator_port: int) -> None:
+        self.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{emulator_port}", source_system=42)
+
+    def command(self, cmd: int, *params: float) -> None:
+        p = [*params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0][:7]
+        self.conn.mav.command_long_send(1, 1, cmd, 0, *p)
+
+    def close(self) -> None:
+        self.conn.close()
+
+
+def fly_with_intrusion(tmp_path: Path, intrude: Any) -> tuple[dict, Path, dict]:
+    """Fly 6 s of hover in lockstep; ``intrude(emulator, station)`` runs once, 1.5 s of vehicle time into the
+    controlled flight (from the loop's tick, before that tick's setpoint: deterministic in lockstep)."""
+    port = free_udp_port()
+    emu = EmulatorThread("px4", port, lockstep=True, period=0.004).start()
+    station = ForeignStation(emu.link.endpoints[0].local_port)
+    state: dict[str, float | bool] = {"t0": float("inf"), "done": False}
+
+    def probe(t: float) -> Any:
+        if not state["done"] and t >= float(state["t0"]) + 1.5:
+            state["done"] = True
+            intrude(emu, station)
+        return emu.truth(t)
+
+    def start(t0: float) -> None:
+        state["t0"] = t0
+        emu.set_reference_start(t0)
+
+    try:
+        m, folder = fly(
+            fly_args(port, tmp_path / "f"), lockstep=True, truth_probe=probe, quiet=True, on_reference_start=start
+        )
+    finally:
+        summary = emu.stop()
+        station.close()
+    assert state["done"], "the flight never reached the intrusion"
+    return m, folder, summary
+
+
+def loop_events(folder: Path) -> list[dict]:
+    return json.loads((folder / "events.json").read_text())["loop"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("case", "ended_by", "code", "words"),
+    [
+        ("foreign_set_mode", "mode_change", EXIT_TAKEN_OVER, ("OFFBOARD", "POSCTL", "system 42")),
+        ("forced_disarm", "disarmed", EXIT_DISARMED, ("disarmed", "system 42")),
+        ("rc_switch", "mode_change", EXIT_TAKEN_OVER, ("OFFBOARD", "ALTCTL")),
+    ],
+)
+def test_an_unrequested_mode_change_or_disarm_ends_the_flight(
+    tmp_path: Path, case: str, ended_by: str, code: int, words: tuple[str, ...]
+) -> None:
+    def intrude(emu: EmulatorThread, station: ForeignStation) -> None:
+        if case == "foreign_set_mode":
+            station.command(MAV_CMD_DO_SET_MODE, 1.0, 3.0, 0.0)  # PX4 POSCTL
+        elif case == "forced_disarm":
+            station.command(MAV_CMD_COMPONENT_ARM_DISARM, 0.0, PX4_FORCE_DISARM)
+        else:
+            emu.ap.pilot_switch("ALTCTL")
+
+    m, folder, summary = fly_with_intrusion(tmp_path, intrude)
+    fl = m["flight"]
+    assert fl["ended_by"] == ended_by and fl["exit_code"] == code == exit_code(ended_by)
+    assert m["completed"] is False
+    ev = loop_events(folder)
+    abort = next(e for e in ev if e["kind"] == ended_by)
+    for w in words:
+        assert w in abort["reason"], abort["reason"]
+    # the loop noticed within a few heartbeats (1 Hz) of vehicle time and did not fight the new owner: no hold
+    # request, the vehicle stays where the intruder put it
+    assert abort["t_vehicle"] - (m["config"]["reference_start_s"] + 1.5) < 2.5
+    assert m["duration_s"] < 5.0
+    exit_ev = next(e for e in ev if e["kind"] == "exit")
+    assert "left to the vehicle" in exit_ev["reason"]
+    if case == "forced_disarm":
+        assert not summary["armed"]
+    else:
+        assert summary["mode"] == ("POSCTL" if case == "foreign_set_mode" else "ALTCTL") and summary["armed"]
+    if case != "rc_switch":  # the foreign station's acknowledgement was seen and never taken for ours
+        assert fl["supervision"]["foreign_command_acks"] >= 1
+        assert any(e["kind"] == "foreign_command" for e in ev)
+
+
+def test_exit_codes_by_end() -> None:
+    assert exit_code("completed") == 0
+    assert exit_code("mode_change") == exit_code("mode_not_entered") == EXIT_TAKEN_OVER
+    assert exit_code("disarmed") == EXIT_DISARMED
+    for kind in ("telemetry_stale", "swing_limit", "signal", "internal_error", "tracking_error", "latency"):
+        assert exit_code(kind) == EXIT_ABORTED
+
+
+def _hb(mode: int, armed: bool = True) -> Any:
+    return SimpleNamespace(
+        get_type=lambda: "HEARTBEAT", autopilot=12, custom_mode=mode, base_mode=(128 if armed else 0) | 1
+    )
+
+
+def test_supervisor_rules_without_a_link() -> None:
+    """The rules on hand-made messages (the flights above exercise them over the wire)."""
+    s = Supervisor("px4", (255, 191), tracking_limit_m=1.0, confirm_s=3.0)
+    assert s.check(0.0) is None  # not supervising yet
+    s.observe(_hb(PX4_POSCTL), 0.0)
+    s.expect(PX4_OFFBOARD, 10.0)
+    # a heartbeat older than the switch may still show the previous mode: tolerated until confirm_s
+    assert s.check(11.0) is None
+    v = s.check(13.5)
+    assert v is not None and v.kind == "mode_not_entered" and v.action == "hold"
+    s.expect(PX4_OFFBOARD, 20.0)
+    s.observe(_hb(PX4_OFFBOARD), 20.5)
+    assert s.check(21.0) is None and s.check(100.0) is None  # confirmed: no time-out any more
+    # a gimbal's heartbeat (MAV_AUTOPILOT_INVALID) says nothing about the vehicle's mode
+    s.observe(SimpleNamespace(get_type=lambda: "HEARTBEAT", autopilot=8, custom_mode=0, base_mode=0), 101.0)
+    assert s.check(101.0) is None
+    ack = SimpleNamespace(get_type=lambda: "COMMAND_ACK", command=176, result=0, target_system=42, target_component=1)
+    s.observe(ack, 101.5)
+    own = SimpleNamespace(get_type=lambda: "COMMAND_ACK", command=176, result=0, target_system=255, target_component=0)
+    own.target_component = 191
+    s.observe(own, 101.6)
+    assert s.foreign_acks == 1
+    s.observe(_hb(PX4_POSCTL), 102.0)
+    v = s.check(102.0)
+    assert v is not None and v.kind == "mode_change" and v.action == "none"
+    assert "POSCTL" in v.reason and "system 42" in v.reason
+    s.observe(_hb(PX4_OFFBOARD, armed=False), 103.0)
+    v = s.check(103.0)
+    assert v is not None and v.kind == "disarmed"
+    s.release()
+    assert s.check(104.0) is None
+    assert s.check_tracking(0.6, 0.6, 0.5) is None
+    v = s.check_tracking(0.9, 0.6, 0.5)
+    assert v is not None and v.kind == "tracking_error" and "1.19 m" in v.reason
+    assert s.check_tracking(float("nan"), 0.0, 0.0) is None  # the divergence watchdog / the mapping handle NaN

@@ -1,0 +1,234 @@
+"""slung sweep: the batched path equals the scalar one, a resumed sweep gives the same table, Dask gives the
+same results as one process, and the file's errors are one-line UserErrors."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from estimators.errors import UserError
+from estimators.model.vehicle import Vehicle
+from offboard.control import smc
+from offboard.control.controllers import registry
+from offboard.control.controllers.sliding_mode import SlidingModeController
+from offboard.harness import batched, sim, sweep
+from offboard.harness.sweep_cli import execute
+from offboard.logs.runlog import SimConfig
+
+V = Vehicle()
+
+
+def _short_file(
+    tmp_path: Path, engine: str = "scalar", estimator: str = "truth", move: float = 2.0, hold: float = 2.0
+) -> Path:
+    """The default distribution with a short move (default 2 s move, 2 s hold): cheap runs, same parameters."""
+    text = sweep.DEFAULT_FILE.read_text(encoding="utf-8")
+    text = text.replace("move_time_s = 4.0", f"move_time_s = {move}").replace("hold_s = 8.0", f"hold_s = {hold}")
+    text = text.replace('estimator = "kf"', f'estimator = "{estimator}"').replace(
+        'engine = "batched"', f'engine = "{engine}"'
+    )
+    text = text.replace("gust_start_s = {low = 1.0, high = 5.0}", "gust_start_s = {low = 0.5, high = 3.0}")
+    p = tmp_path / "sweep.toml"
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+@pytest.mark.parametrize("switching", ["sign", "smooth"])
+def test_batched_path_equals_the_scalar_path(tmp_path: Path, switching: str) -> None:
+    """Three drawn runs (different masses, cable lengths, inertia, gusts and initial swings) advanced together
+    give the trajectories of ``offboard.harness.sim.run`` on each (true state, ideal actuators) to 1e-9."""
+    cfg = sweep.load_config(_short_file(tmp_path))
+    params = smc.ControllerParams.for_vehicle(V, switching=switching)
+    draws = [sweep.draw(cfg, r, V) for r in range(3)]
+    vehicles = [sweep.plant_vehicle(V, d) for d in draws]
+    assert len({v.cable_length for v in vehicles}) == 3
+    scs = [sweep.scenario(cfg, d) for d in draws]
+    log = batched.simulate(scs, vehicles, params)
+    for b in range(3):
+        ref = sim.run(scs[b], vehicles[b], params, SimConfig())
+        assert ref.data.shape[0] == log["x"].shape[0]
+        np.testing.assert_allclose(log["x"][:, :, b], ref.data[:, 1:19], rtol=0.0, atol=1e-9)
+        np.testing.assert_allclose(log["alpha"][:, b], ref.column("alpha"), rtol=0.0, atol=1e-9)
+        assert ref.column("alpha").max() > 0.05  # the runs swing: the comparison is not of two resting states
+
+
+def test_batched_path_with_the_filter_equals_the_scalar_path(tmp_path: Path) -> None:
+    """Three drawn runs with the Kalman filter on their drawn sensors (noise, latency: records late past the
+    filter's horizon are dropped) and the mixer with their drawn motor lags, advanced together: the plant's
+    trajectories and the estimates' errors of ``offboard.harness.sim.run`` on each, to 1e-9."""
+    cfg = sweep.load_config(_short_file(tmp_path, estimator="kf", move=1.0, hold=0.5))
+    params = registry.smc_params(V)
+    draws = [sweep.draw(cfg, r, V) for r in range(3)]
+    assert max(d["sensor_latency_s"] for d in draws) > 0.006  # past the 12 ms horizon for the 6 ms positions
+    vehicles = [sweep.plant_vehicle(V, d) for d in draws]
+    assert len({v.motor_time_constant for v in vehicles}) == 3
+    scs = [sweep.scenario(cfg, d) for d in draws]
+    presets = [sweep.sensor_preset(cfg, d) for d in draws]
+    seeds = [int(d["sensor_seed"]) for d in draws]
+    log = batched.simulate(
+        scs, vehicles, params, estimator="kf", actuators="mixer", sensors=presets, seeds=seeds, load_sensor=True
+    )
+    for b in range(3):
+        sim_cfg = SimConfig(estimator="kf", sensors=cfg.sensors, actuators="mixer", seed=seeds[b])
+        law = SlidingModeController(params)
+        ref = sim.run(
+            scs[b],
+            vehicles[b],
+            smc.ControllerParams.for_vehicle(V),
+            sim_cfg,
+            controller=law,
+            sensor_preset=presets[b],
+            command_lag=True,
+        )
+        assert ref.data.shape[0] == log["x"].shape[0]
+        np.testing.assert_allclose(log["x"][:, :, b], ref.data[:, 1:19], rtol=0.0, atol=1e-9)
+        for col in ("est_Fx0", "est_Fy0"):  # the filter's estimate, not only the plant it steers
+            np.testing.assert_allclose(log[col][:, b], ref.column(col), rtol=0.0, atol=1e-9)
+        assert np.abs(ref.column("est_Fx0")).max() > 1e-3  # a real estimate, not the true state
+        assert ref.column("alpha").max() > 0.05
+
+
+def test_batched_sweep_gives_the_scalar_sweeps_table(tmp_path: Path) -> None:
+    """``slung sweep`` with the batched engine (filter, mixer) writes the scalar engine's table: the same verdicts,
+    the same figures to 1e-9."""
+    tables = {}
+    for engine in ("scalar", "batched"):
+        (tmp_path / engine).mkdir()
+        f = _short_file(tmp_path / engine, engine=engine, estimator="kf", move=1.0, hold=2.2)
+        s = execute(3, ["smc"], tmp_path / engine / "out", file=str(f), workers=0, figures=False, progress=False)
+        assert s["engine_by_controller"] == {"smc": engine}
+        with open(tmp_path / engine / "out" / "results.csv", encoding="utf-8") as fh:
+            tables[engine] = list(csv.DictReader(fh))
+    assert len(tables["scalar"]) == len(tables["batched"]) == 3
+    for a, b in zip(tables["scalar"], tables["batched"]):
+        assert (a["run"], a["success"], a["failure"], a["completed"]) == (
+            b["run"],
+            b["success"],
+            b["failure"],
+            b["completed"],
+        )
+        for k in ("peak_swing_rad", "residual_swing_rad", "tracking_rms_m", "final_error_m", "max_estimate_error_m"):
+            assert abs(float(a[k]) - float(b[k])) <= 1e-9, k  # (a NaN fails: every figure exists here)
+        assert a["sim_s"] == b["sim_s"]
+
+
+def _table(out: Path) -> list[str]:
+    return (out / "results.csv").read_text(encoding="utf-8").splitlines()
+
+
+def test_interrupted_and_resumed_sweep_gives_the_same_table(tmp_path: Path) -> None:
+    f = _short_file(tmp_path)
+    whole = tmp_path / "whole"
+    execute(3, ["smc", "cascade"], whole, file=str(f), workers=0, chunk=1, figures=False, progress=False)
+    cut = tmp_path / "cut"
+    with pytest.raises(KeyboardInterrupt):
+        execute(
+            3,
+            ["smc", "cascade"],
+            cut,
+            file=str(f),
+            workers=0,
+            chunk=1,
+            figures=False,
+            progress=False,
+            stop_after_chunks=3,
+        )
+    assert len(_table(cut)) == 1 + 3  # three chunks of one were kept
+    # a kill in the middle of a write leaves half a line: it is dropped and its run flown again
+    with open(cut / "results.csv", "a", encoding="utf-8") as fh:
+        fh.write("1,cascade,0.5")
+    s = execute(3, ["smc", "cascade"], cut, file=str(f), workers=0, chunk=1, figures=False, progress=False)
+    assert s["this_invocation"]["resumed_runs"] == 3 and s["this_invocation"]["runs"] == 3
+    assert _table(cut) == _table(whole)
+    summary = json.loads((cut / "summary.json").read_text())
+    for c in ("smc", "cascade"):
+        assert summary[c]["runs"] == 3 and 0.0 <= summary[c]["success_rate"] <= 1.0
+    assert summary["sim_seconds_per_wall_second"] > 0
+    with pytest.raises(UserError):  # another configuration into the same folder is refused
+        execute(3, ["smc"], cut, file=str(f), engine="batched", workers=0, figures=False, progress=False)
+
+
+@pytest.mark.slow
+def test_two_worker_dask_cluster_gives_the_results_of_one_process(tmp_path: Path) -> None:
+    f = _short_file(tmp_path)
+    one, two = tmp_path / "one", tmp_path / "two"
+    execute(2, ["smc", "lqr"], one, file=str(f), workers=0, chunk=1, figures=False, progress=False)
+    s = execute(2, ["smc", "lqr"], two, file=str(f), workers=2, chunk=1, figures=True, progress=False)
+    assert _table(one) == _table(two)
+    assert s["scheduler"].startswith("local cluster")
+    assert (two / "sweep_success.png").stat().st_size > 1000
+    assert "Plotly.newPlot" in (two / "report.html").read_text(encoding="utf-8")
+
+
+@pytest.mark.slow
+def test_two_worker_dask_cluster_with_the_batched_engine_gives_the_results_of_one_process(tmp_path: Path) -> None:
+    """The default engine (batched, the filter and the mixer): chunks of 2 runs on two workers write the table of
+    one chunk of 4 in this process (a run's result does not depend on its batch)."""
+    f = _short_file(tmp_path, engine="batched", estimator="kf", move=1.0, hold=0.5)
+    one, two = tmp_path / "one", tmp_path / "two"
+    execute(4, ["smc"], one, file=str(f), workers=0, figures=False, progress=False)
+    s = execute(4, ["smc"], two, file=str(f), workers=2, chunk=2, figures=False, progress=False)
+    assert s["engine_by_controller"] == {"smc": "batched"}
+    assert _table(one) == _table(two)
+
+
+def test_sweep_file_errors_are_user_errors(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    for text, word in (
+        ("[parameters]\nwingspan = {low = 1, high = 2}\n", "wingspan"),
+        ("[parameters]\nmass_load = {relative = 1.5}\n", "relative"),
+        ("[parameters]\ngust_n = {relative = 0.1}\n", "nominal"),
+        ("[success]\nmax_swing_rad = -1\n", "max_swing_rad"),
+        ("[run]\nengine = 'gpu'\n", "engine"),
+        ("[run\n", "sweep file"),
+    ):
+        bad.write_text(text, encoding="utf-8")
+        with pytest.raises(UserError, match=word):
+            sweep.load_config(bad)
+    with pytest.raises(UserError, match="cannot read"):
+        sweep.load_config(tmp_path / "missing.toml")
+
+
+def test_draws_depend_on_the_run_only_and_cover_the_ranges() -> None:
+    cfg = sweep.load_config(None)
+    a = [sweep.draw(cfg, r, V) for r in range(200)]
+    assert a[7] == sweep.draw(cfg, 7, V)  # a pure function of (seed, run)
+    masses = np.array([d["mass_vehicle"] for d in a])
+    assert masses.min() >= 0.7 * V.mass_vehicle - 1e-12 and masses.max() <= 1.3 * V.mass_vehicle + 1e-12
+    assert masses.max() - masses.min() > 0.45 * V.mass_vehicle  # spread over most of +-30 %
+    lat = np.array([d["sensor_latency_s"] for d in a])
+    assert lat.min() >= 0.0 and lat.max() <= 0.02
+
+
+def test_the_sweep_report_html_holds_the_success_rates_per_bin(tmp_path: Path) -> None:
+    """report.html of a sweep (issue 14: every sim, fly, demo, replay, compare and sweep run writes one): the figure's
+    data are the success rates and worst swings per parameter bin of a known table, and the page is self-contained."""
+    from offboard.harness.sweep import PARAMETERS
+    from offboard.report.sweep_report import sweep_figure, write_html
+
+    def row(c: str, k: int, mass: float, ok: bool, swing: float) -> dict[str, str]:
+        r = {n: "1.0" for n in PARAMETERS}
+        r.update(controller=c, run=str(k), mass_vehicle=repr(mass), success="1" if ok else "0")
+        r.update(residual_swing_rad=repr(swing), tracking_rms_m="0.1")
+        return r
+
+    # masses 0.3 .. 0.8 kg in six equal bins (one run per bin and controller): "a" fails in the lightest two bins
+    masses = [0.3, 0.4, 0.5, 0.6, 0.7, 0.8]
+    table = [row("a", k, m, k >= 2, 0.01 * (k + 1)) for k, m in enumerate(masses)]
+    table += [row("b", k, m, True, 0.002) for k, m in enumerate(masses)]
+    fig = sweep_figure(table, ["a", "b"])
+    success = [tr for tr in fig.data if tr.type == "scatter" and tr.xaxis == "x"]  # row 1, column 1: mass
+    assert [tr.name for tr in success] == ["a", "b"]
+    assert list(success[0].y) == [0.0, 0.0, 1.0, 1.0, 1.0, 1.0] and list(success[1].y) == [1.0] * 6
+    worst = [tr for tr in fig.data if tr.type == "scatter" and tr.xaxis == "x2"]
+    assert np.allclose(list(worst[0].y), [0.01 * (k + 1) for k in range(6)])
+    assert np.allclose(success[0].x, [0.3 + 0.5 / 12 * (2 * k + 1) for k in range(6)])
+    summary = {"controllers": {"a": {"runs": 6, "success_rate": 4 / 6}, "b": {"runs": 6, "success_rate": 1.0}}}
+    page = write_html(tmp_path, table, ["a", "b"], summary).read_text(encoding="utf-8")
+    assert "a: 6 runs, b: 6 runs" in page and "slung-sweep" in page and "0.666667" in page
+    # self-contained: plotly inlined, nothing fetched from the network
+    assert "<script src=" not in page and "<link" not in page and "Plotly.newPlot" in page
