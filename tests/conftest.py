@@ -1,29 +1,42 @@
 """How the suite shares a machine when pytest-xdist runs it on several workers (``pytest -n auto``, the default in
 ``pyproject.toml``).
 
-Each test file is one ``xdist_group``, so a file's module fixtures (a demo flight, PX4 flights) run once, on one
-worker, as they would serially. The files that start PX4 SITL share a single group: they run one after another on
-one worker, so no two PX4 instances (each a real-time simulation plus a 250 Hz loop) compete for the two cores of
-a CI machine, and the fixed instance numbers of those files cannot collide. Without xdist (``-p no:xdist`` or
-``-n 0``) the marks are inert.
+Work is handed out by test file, so a file's module fixtures (a demo flight, PX4 flights) run once, on one worker, as
+they would serially. The files that start PX4 SITL form one unit: they run one after another on one worker, so no
+two PX4 instances (each a real-time simulation plus a 250 Hz loop) compete for the two cores of a CI machine, and
+the fixed instance numbers of those files cannot collide. With ``-n 0`` (one process) none of this applies.
+
+The grouping is a scheduler of its own rather than ``--dist loadgroup`` with ``xdist_group`` marks: pytest-xdist
+3.8 forms those groups by rewriting ``item._nodeid``, which pytest 9.2 no longer reads, so the marks were silently
+ignored (seen: PX4 flights on both workers, "PX4 server already running for instance 0").
 """
 
 from __future__ import annotations
 
 import functools
 from pathlib import Path
+from typing import Any
 
 import pytest
 
-#: the group of every test file that starts PX4 SITL (it calls ``real_components.require_px4_sitl``)
-PX4_SITL_GROUP = "px4-sitl"
+#: the work unit of every test file that starts PX4 SITL (it calls ``real_components.require_px4_sitl``)
+PX4_SITL_UNIT = "px4-sitl"
 
 
 @functools.cache
-def _group_of(path: Path) -> str:
-    return PX4_SITL_GROUP if "require_px4_sitl()" in path.read_text(encoding="utf-8") else path.name
+def _starts_px4_sitl(path: Path) -> bool:
+    return path.is_file() and "require_px4_sitl()" in path.read_text(encoding="utf-8")
 
 
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    for item in items:
-        item.add_marker(pytest.mark.xdist_group(_group_of(item.path)))
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
+    from xdist.scheduler import LoadFileScheduling
+
+    class ByFilePx4Serial(LoadFileScheduling):
+        """``--dist loadfile``, but every PX4 SITL file in one unit."""
+
+        def _split_scope(self, nodeid: str) -> str:
+            file = super()._split_scope(nodeid)
+            return PX4_SITL_UNIT if _starts_px4_sitl(config.rootpath / file) else file
+
+    return ByFilePx4Serial(config, log)
