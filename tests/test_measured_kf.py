@@ -110,7 +110,10 @@ def test_no_load_means_no_swing_states_and_hover_is_accepted() -> None:
 
 def test_step_length_does_not_change_the_cost() -> None:
     """Microsecond-jittered stamps (thousands of distinct step lengths) cost what grid stamps cost: no
-    discretization is computed per step length (the earlier filter re-discretized on each: 7.8 ms p99)."""
+    discretization is computed per step length (the earlier filter re-discretized on each: 7.8 ms p99). A cost
+    per step length shows in nearly every jittered step, so in the median and the 90th percentile; the 99th is left
+    out because on a loaded machine it is the scheduler's: beside ``stress --cpu 2`` one run's p99 was 4.1 ms
+    against 0.2 ms, the same code, preempted (2026-12-02)."""
     v = V.with_changes(mass_load=0.0)
     costs = {}
     for jitter in (False, True, False, True):  # interleaved so that both see the same machine load
@@ -118,9 +121,9 @@ def test_step_length_does_not_change_the_cost() -> None:
         c = _run(MeasuredKalmanEstimator(v, load_sensor=False, rate_hz=250.0), recs, ticks)
         costs.setdefault(jitter, []).extend(c)
     med = {k: float(np.median(c)) for k, c in costs.items()}
-    p99 = {k: float(np.percentile(c, 99)) for k, c in costs.items()}
+    p90 = {k: float(np.percentile(c, 90)) for k, c in costs.items()}
     assert med[True] < 2.0 * med[False] + 20e-6, med
-    assert p99[True] < 3.0 * p99[False] + 200e-6, p99
+    assert p90[True] < 3.0 * p90[False] + 200e-6, p90
 
 
 def test_commands_move_only_the_tilt_and_only_until_the_next_attitude_sample() -> None:
