@@ -4,16 +4,16 @@ quantity a numpy array over the runs, the same equations as the scalar path.
 - plant: ``sim_bridge.plant.dynamics.derivative`` (paper attitude model, eq. (13)) and ``rk4_step`` with the cable
   projection, written once more over arrays (:func:`derivative`, :func:`rk4_step`), each run with its own masses,
   cable length and inertia;
-- controller: the sliding-mode law ``offboard.control.smc.step`` over arrays (:func:`smc_step`: the same height, yaw and
-  horizontal laws, saturation and anti-windup), on the TRUE state (``offboard.harness.sim.truth_control_state`` over
-  arrays) with the controller's nominal vehicle;
+- controller: the sliding-mode law ``offboard.control.smc.step`` over arrays
+  (``offboard.harness.batched_controllers.smc_step``: the same height, yaw and horizontal laws, saturation and
+  anti-windup), on the estimator's state (below) with the controller's nominal vehicle;
 - one reference for all runs (sampled once per tick), a 1 - cos gust and an initial swing per run.
 
-What the batched path leaves out, and why: the Kalman filter and the sensor models (the filter is an event-driven
-object with per-measurement gating, buffering and latency handling, not an array operation), and the mixer's
-motor lag (``actuators = "ideal"``). The sensor-noise, latency and motor-time-constant columns are still drawn
-(the runs stay the same runs as the scalar engine's) but do not act. ``tests/test_batched.py`` checks the batched
-trajectories against ``offboard.harness.sim.run`` on the same runs.
+Estimation and actuation, as in the scalar path: ``estimator = "truth"`` (the true state) or ``"kf"``, the
+measured-input Kalman filter over arrays (``estimators.filters.batched_kf``) fed by each run's sensors, whose record
+timing is worked out per run beforehand (``offboard.harness.batched_sensors``); ``actuators = "ideal"`` or
+``"mixer"`` (four motors with each vehicle's lag). ``tests/test_sweep.py`` checks the batched sweep's table against
+the scalar engine's on the same runs.
 """
 
 from __future__ import annotations
