@@ -4,7 +4,8 @@
 Work is handed out by test file, so a file's module fixtures (a demo flight, PX4 flights) run once, on one worker, as
 they would serially. The files that start PX4 SITL form one unit: they run one after another on one worker, so no
 two PX4 instances (each a real-time simulation plus a 250 Hz loop) compete for the two cores of a CI machine, and
-the fixed instance numbers of those files cannot collide. With ``-n 0`` (one process) none of this applies.
+the fixed instance numbers of those files cannot collide. With ``-n 0`` (one process), or another ``--dist``
+than xdist's default ``load``, none of this applies.
 
 The grouping is a scheduler of its own rather than ``--dist loadgroup`` with ``xdist_group`` marks: pytest-xdist
 3.8 forms those groups by rewriting ``item._nodeid``, which pytest 9.2 no longer reads, so the marks were silently
@@ -30,6 +31,8 @@ def _starts_px4_sitl(path: Path) -> bool:
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
+    if config.getvalue("dist") != "load":  # another --dist asked for on the command line: xdist's own scheduler
+        return None
     from xdist.scheduler import LoadFileScheduling
 
     class ByFilePx4Serial(LoadFileScheduling):
