@@ -234,6 +234,33 @@ def test_tlog_format_is_readable_by_pymavlink(tmp_path) -> None:
     assert msgs[2]._timestamp == pytest.approx(1_700_000_002.0, abs=1e-5)
 
 
+def test_a_setpoint_sent_without_its_log_record_is_on_the_wire_first_and_logged_after(tmp_path) -> None:
+    """The loop's tick writes the setpoint (``send(msg, log=False)``) before its tlog record (``log_sent``), so that a
+    slow log write never delays it: the datagram is out while the tlog is still empty, and the record then appears
+    with the stamp given, readable by pymavlink."""
+    import socket
+
+    from offboard.flight.link.connection import MavConnection
+
+    peer = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    peer.bind(("127.0.0.1", 0))
+    peer.settimeout(5.0)
+    conn = MavConnection(f"udpout:127.0.0.1:{peer.getsockname()[1]}", tlog_path=tmp_path / "f.tlog")
+    try:
+        sp = spm.AttitudeTarget((1.0, 0.0, 0.0, 0.0), 0.0, 0.0, 0.0, 0.5, spm.MASK_ATTITUDE)
+        buf = conn.send(spm.encode(conn.mav, sp, 1.0, 1, 1), log=False)
+        assert peer.recv(300) == buf
+        assert (tmp_path / "f.tlog").read_bytes() == b""
+        conn.log_sent(buf, 1_700_000_000.0)
+        raw = (tmp_path / "f.tlog").read_bytes()
+        assert raw == struct.pack(">Q", int(1_700_000_000.0 * 1e6) & ~3) + buf
+    finally:
+        conn.close()
+        peer.close()
+    m = mavutil.mavlink_connection(str(tmp_path / "f.tlog")).recv_match(type="SET_ATTITUDE_TARGET")
+    assert m is not None and m.thrust == pytest.approx(0.5)
+
+
 def test_url_forms() -> None:
     assert normalize_url("udpin://0.0.0.0:14540") == ("udpin:0.0.0.0:14540", 57600)
     assert normalize_url("serial:/dev/ttyUSB0:921600") == ("/dev/ttyUSB0", 921600)

@@ -444,16 +444,20 @@ class FlightLoop:
             return None
         return self.last_pos.z - (self.ground_z or 0.0)
 
-    def _send(self, sp: Any, t: float) -> None:
+    def _send(self, sp: Any, t: float, log: bool = True) -> bytes:
+        """Encode, check and write setpoint ``sp`` (sender time ``t``, s); the bytes written. ``log=False``: the
+        caller logs them (``conn.log_sent``) after the time-critical part of the tick."""
         try:
             msg = encode(self.conn.mav, sp, max(t, 0.0), *self.target)
         except SetpointError as exc:  # the mapper should make this impossible; never send it anyway
             self.event("setpoint_refused", str(exc))
             sp = self.mapper.hover_setpoint(self.last_att.psi if self.last_att else 0.0)
             msg = encode(self.conn.mav, sp, max(t, 0.0), *self.target)
-        self.stats.sent_bytes += len(self.conn.send(msg))
+        buf = self.conn.send(msg, log)
+        self.stats.sent_bytes += len(buf)
         self.last_sp = sp
         self.last_send_local = time.monotonic()
+        return buf
 
     def _hover_sp(self) -> Any:
         return self.mapper.hover_setpoint(self.last_att.psi if self.last_att is not None else 0.0)
@@ -891,10 +895,12 @@ class FlightLoop:
             est, ref, rfx, rfy, rz, cmd, sp = out.est, out.ref, out.rfx, out.rfy, out.rz, out.cmd, out.setpoint
             if self._inject and self._injected("setpoint", t_ref):
                 sp = sp._replace(thrust=math.nan)
-            self._send(sp, t_ref)
-            sp = self.last_sp  # what left (the hover setpoint if the encoder refused this one): what the log records
+            buf = self._send(sp, t_ref, log=False)
             sent = time.monotonic()
             compute = time.perf_counter() - perf0
+            # the setpoint is on the wire: now its tlog record (a slow write must not delay the setpoint)
+            self.conn.log_sent(buf, time.time())
+            sp = self.last_sp  # what left (the hover setpoint if the encoder refused this one): what the log records
             # ---- statistics and log ----------------------------------------------------------------------
             latency = math.nan
             if self.trigger_local is not None:

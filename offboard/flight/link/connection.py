@@ -234,15 +234,25 @@ class MavConnection:
         self.listener: Any = None
 
     # ---------------------------------------------------------------------------------------- sending ---
-    def send(self, msg: Any) -> bytes:
-        """Pack ``msg`` with our ids and sequence, write it and log it; returns the bytes written."""
+    def send(self, msg: Any, log: bool = True) -> bytes:
+        """Pack ``msg`` with our ids and sequence, write it and log it; returns the bytes written.
+
+        ``log=False``: the caller logs the packet itself with :meth:`log_sent` once the time-critical part is over
+        (the control loop: the setpoint leaves first, and a slow log write, an SD card that stalls, never delays it).
+        """
         buf = msg.pack(self.mav)
         self.mav.seq = (self.mav.seq + 1) % 256
         self.conn.write(buf)
         self.stats.sent += 1
-        if self.tlog is not None:
+        if log and self.tlog is not None:
             self.tlog.write(buf)
         return buf
+
+    def log_sent(self, buf: bytes, wall_time: float) -> None:
+        """Log a packet :meth:`send` wrote with ``log=False``, stamped with ``wall_time`` (s since the epoch: when
+        it was written)."""
+        if self.tlog is not None:
+            self.tlog.write(buf, wall_time)
 
     def heartbeat(self, now: float, period: float = 1.0) -> None:
         """Send our HEARTBEAT if ``period`` s have passed since the last one (``now``: local monotonic s)."""

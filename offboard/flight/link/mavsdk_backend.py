@@ -81,10 +81,15 @@ class MavsdkConnection(MavConnection):
             if self.tlog is not None:
                 self.tlog.write(data)
 
-    def send(self, msg: Any) -> bytes:
+    def send(self, msg: Any, log: bool = True) -> bytes:
         """As :meth:`MavConnection.send`, serialized with MAVSDK's own writes."""
         with self._out_lock:
-            return super().send(msg)
+            return super().send(msg, log)
+
+    def log_sent(self, buf: bytes, wall_time: float) -> None:
+        """As :meth:`MavConnection.log_sent`, serialized with MAVSDK's own writes (its packets go into the tlog too)."""
+        with self._out_lock:
+            super().log_sent(buf, wall_time)
 
     def poll(self) -> list[Received]:
         """As :meth:`MavConnection.poll`; every packet is also handed to MAVSDK."""
