@@ -13,9 +13,11 @@ in a background thread (two at once, each PX4 about 0.3 core and each 250 Hz loo
 The hover asserts issue 9's hover targets that it meets reliably on the shared machine (``docs/deploy.md`` section
 2a has every run's figures): height within 0.15 m of 2 m above the take-off point, the time-mean EKF2 position
 within 0.15 m of the reference, motors saturated in at most 2 % of the samples, tilt p95 at most 6 deg and the
-filter accepting at least 95 % of the measurements. Not asserted, because not met reliably (the figures are in
-docs/deploy.md): the mean DISTANCE of EKF2's position from the reference (0.12-0.24 m against 0.15), the truth jitter
-within 1.2x PX4's own hold (0.39-1.21x; PX4's own hold is not flown here) and the 2 m move's tilt p95 under 12 deg:
+filter accepting at least 95 % of the measurements. PX4's own position hold is flown in the same PX4 run right after
+the hover (PX4 holds by itself where slung handed it over) and compared with it. Not asserted, because not met
+reliably (the figures are in docs/deploy.md): the truth jitter within 1.2x of PX4's hold (0.39-0.87x in six runs,
+1.39x in one; 2x is asserted), the mean DISTANCE of EKF2's position from the reference (0.12-0.24 m against 0.15)
+and the 2 m move's tilt p95 under 12 deg:
 12.97-13.92 deg in the eight runs of 2026-12-02 07:00-08:15 UTC (12.1-14.4 before), out of reach with this reference on
 SIH, whose drag (SIH_KDV, 1 N per m/s on 1 kg) makes exact tracking need 14.7-15.05 deg at p95 where the drag-free
 reference shows 10.5 (docs/deploy.md section 2a, ``bench/px4_move_tilt.py``). Without the SITL binary the tests skip
@@ -56,6 +58,11 @@ INSTANCES_ENV = "SLUNG_PX4_TEST_INSTANCES"
 #: outcome is a known mode; everything else is PX4's default
 PX4_PARAMS = {"COM_OBL_RC_ACT": 5}
 
+#: PX4's own position hold after the hover (AUTO.LOITER, where slung handed the vehicle over): judged from this
+#: long after the hand-over (PX4 brakes and settles on its hold point), for this long (s of PX4 time)
+PX4_HOLD_SETTLE_S = 5.0
+PX4_HOLD_S = 20.0
+
 TRAJECTORIES = {
     "hover": f'kind = "hover"\nx = 0.0\ny = 0.0\nz = {HEIGHT_M}\n',
     # rest 1 s, 2 m along x in 4 s (a waypoint pair with absolute times), rest 3 s
@@ -91,9 +98,12 @@ class Flight:
         return np.genfromtxt(self.out / "fly" / "timeseries_live.csv", delimiter=",", names=True)
 
 
-def _fly(root: Path, name: str, instance: int, action: str | None, duration: float, *, base: Path) -> Flight:
+def _fly(
+    root: Path, name: str, instance: int, action: str | None, duration: float, hold_after: float, *, base: Path
+) -> Flight:
     """Start PX4 instance ``instance``, fly ``slung -v fly`` against it, do ``action`` (``sigint`` / ``freeze``)
-    3 s after offboard control started, stop PX4 and read its ULog."""
+    3 s after offboard control started, leave PX4 holding by itself for ``hold_after`` s (wall clock), stop PX4 and
+    read its ULog."""
     out = base / name
     out.mkdir(parents=True, exist_ok=True)
     traj = out / "trajectory.toml"
@@ -161,7 +171,7 @@ def _fly(root: Path, name: str, instance: int, action: str | None, duration: flo
         flight.stderr = "".join(lines)
         assert sitl.started_monotonic is not None
         flight.marks = {k: v - sitl.started_monotonic for k, v in flight.marks.items()}  # PX4 boot time, about
-        time.sleep(6.0)  # let PX4 log what its hold did after the flight
+        time.sleep(hold_after)  # let PX4 log what its hold did after the flight (the hover: PX4's own hold, judged)
     except Exception as exc:  # reported by the test that owns the flight
         flight.error = f"{type(exc).__name__}: {exc}"
     finally:
@@ -179,11 +189,11 @@ def flights(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Futu
     pool = ThreadPoolExecutor(max_workers=1)  # one at a time: two loops at 250 Hz overrun on a loaded 2-core machine
     inst = [int(v) for v in os.environ.get(INSTANCES_ENV, "0,1,2,3").split(",")]
     assert len(inst) == 4, f"{INSTANCES_ENV} must name four instances, got {inst}"
-    plan = {
-        "hover": (inst[0], None, 20.0),
-        "move": (inst[1], None, 8.0),
-        "sigint": (inst[2], "sigint", 20.0),
-        "offboard_loss": (inst[3], "freeze", 20.0),
+    plan = {  # instance, action, duration, then PX4 holding by itself (the hover: its own hold, compared)
+        "hover": (inst[0], None, 20.0, PX4_HOLD_SETTLE_S + PX4_HOLD_S + 4.0),
+        "move": (inst[1], None, 8.0, 6.0),
+        "sigint": (inst[2], "sigint", 20.0, 6.0),
+        "offboard_loss": (inst[3], "freeze", 20.0, 6.0),
     }
     futures = {name: pool.submit(_fly, root, name, *spec, base=base) for name, spec in plan.items()}
     yield futures
@@ -257,6 +267,37 @@ def test_hover_20_s_at_2_m_above_the_take_off_point(flights: dict[str, Future[Fl
     assert q.truth_error_mean_m < 1.5, q
     assert f.ulog.nav_state_at(t0 + 10.0) == NAV_STATE["offboard"]
     assert f.ulog.nav_state_at(t1 + 1.0) == NAV_STATE["auto_loiter"]  # the confirmed hand-over to hold
+
+
+def test_the_hover_beside_px4_s_own_position_hold_in_the_same_run(flights: dict[str, Future[Flight]]) -> None:
+    """PX4's own position hold, flown by the same PX4 run right after slung's 20 s hover: slung hands the vehicle
+    over to AUTO.LOITER at 2 m and PX4 holds there by itself (judged from 5 s after the hand-over, for 20 s of its
+    time). Both ride on the same EKF2, whose GNSS-driven wander (0.2 m horizontal noise) both follow.
+
+    Issue 9 asks for slung's truth jitter (RMS distance of the true position from its mean) within 1.2x of the
+    hold's. Measured: 0.39-0.87x in six benchmark runs (docs/deploy.md section 2a) but 1.39x in this test's first
+    run (an EKF2 velocity error of about 0.9 m/s for 2 s at the start of slung's stretch, which the vehicle
+    followed), so one 20 s stretch of each does not decide it and 1.2x is not asserted. Asserted: PX4 really held
+    by itself (AUTO.LOITER, no motor saturated), slung's jitter within 2x of the hold's and its tilt p95 within
+    issue 9's "6 deg or 2x PX4's own hold"; the figures go to ``px4_hold_comparison.json`` in the flight's folder."""
+    f = _flight(flights, "hover")
+    assert f.ulog is not None
+    t0, t1 = _control_window(f)
+    tr, ref = _reference_ned(f)
+    q = flight_quality(f.ulog, t0, t1, ref, tr)
+    h0 = t1 + PX4_HOLD_SETTLE_S
+    h1 = min(h0 + PX4_HOLD_S, float(f.ulog.truth_pos.t[-1]) - 0.5)
+    assert h1 - h0 >= 15.0, f"PX4's own hold was logged for {h1 - h0:.1f} s only"
+    assert all(f.ulog.nav_state_at(t) == NAV_STATE["auto_loiter"] for t in np.linspace(h0 - 4.0, h1, 25))
+    hold = flight_quality(f.ulog, h0, h1, ref[-1])
+    ratio = q.truth_jitter_m / hold.truth_jitter_m
+    (f.out / "px4_hold_comparison.json").write_text(
+        json.dumps({"slung": q.as_dict(), "px4_hold": hold.as_dict(), "truth_jitter_ratio": ratio}, indent=2) + "\n"
+    )
+    print(f"truth jitter: slung {q.truth_jitter_m:.3f} m, PX4's own hold {hold.truth_jitter_m:.3f} m ({ratio:.2f}x)")
+    assert hold.saturated_fraction == 0.0, hold  # PX4 really held, by itself
+    assert ratio <= 2.0, (q, hold)
+    assert q.tilt_p95_rad <= max(math.radians(6.0), 2.0 * hold.tilt_p95_rad), (q, hold)
 
 
 def test_a_2_m_move_in_4_s_arrives(flights: dict[str, Future[Flight]]) -> None:
