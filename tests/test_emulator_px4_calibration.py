@@ -73,6 +73,11 @@ def test_roll_step_response_matches_real_px4_within_1_5x() -> None:
     assert lo / 1.5 <= emu["step_peak_s"] <= 1.5 * hi, (
         f"step_peak_s: emulator {emu['step_peak_s']:.3f} s outside 1.5x of PX4's {lo:.3f}-{hi:.3f} s"
     )
-    # both reached the commanded tilt (the step really happened on both sides)
-    assert px4["step_final_fraction"] == pytest.approx(1.0, abs=0.15)
+    # both reached the commanded tilt (the step really happened on both sides). PX4's attitude loop regulates EKF2's
+    # roll, which is off the truth by 1.4-2.3 deg in these hovers (docs/deploy.md 2a): 0.12-0.2 of this 0.2 rad
+    # step, so PX4's own reported roll is held to the command and the true roll only to having rolled. A CI run of
+    # 2026-12-02 17:10 UTC: EKF2's roll 0.000-0.003 rad before the step against a true 0.023-0.035, 0.198 at its
+    # end against a true 0.187; the truth's step came to 0.83 of the command, PX4's own to 0.99
+    assert px4["att_step_final_fraction"] == pytest.approx(1.0, abs=0.15), px4
+    assert px4["step_final_fraction"] == pytest.approx(1.0, abs=0.3), px4
     assert emu["step_final_fraction"] == pytest.approx(1.0, abs=0.15)
