@@ -582,8 +582,8 @@ class BatchedMeasuredKalman:
         nx, nxd = self._mean_at(3, t)
         ny, nyd = self._mean_at(4, t)
         psi, psi_rate = self._mean_at(5, t)
-        ay_, ayd, _ = self._mean_at(6, t)
-        ax_, axd, _ = self._mean_at(7, t)
+        ay_, ayd, e_x = self._mean_at(6, t)
+        ax_, axd, e_y = self._mean_at(7, t)
         cp, sp = np.cos(psi), np.sin(psi)
         theta = nx * cp + ny * sp
         phi = nx * sp - ny * cp
@@ -593,9 +593,16 @@ class BatchedMeasuredKalman:
         def chain(p: Array, v: Array, a: Array, ad: Array, n: Array, nd: Array) -> Array:
             return np.stack([p + k.l * a, v + k.l * ad, -k.g * a, -k.g * ad, k.c * (a + n), k.c * (ad + nd)])
 
+        fx, fy = chain(px, vx, ay_, ayd, nx, nxd), chain(py, vy, ax_, axd, ny, nyd)
+        if self.tuning.external_feedforward:  # MeasuredPrediction._control_state's external acceleration in F^(4)
+            z_sig = self.tuning.external_significance
+            g_l = k.g / k.l
+            sx, sy = np.sqrt(self.blocks[6].p[2][2]), np.sqrt(self.blocks[7].p[2][2])
+            fx[4] = fx[4] + g_l * np.copysign(np.maximum(np.abs(e_x) - z_sig * sx, 0.0), e_x)
+            fy[4] = fy[4] + g_l * np.copysign(np.maximum(np.abs(e_y) - z_sig * sy, 0.0), e_y)
         return {
-            "fx": chain(px, vx, ay_, ayd, nx, nxd),
-            "fy": chain(py, vy, ax_, axd, ny, nyd),
+            "fx": fx,
+            "fy": fy,
             "z": z,
             "z_rate": z_rate,
             "phi": phi,

@@ -44,6 +44,12 @@ class MeasuredTuning(MeasurementNoise):
     # a jump of the measured acceleration that the commanded thrust explains is not an outlier (False: the gate
     # takes only the sensor noise, which refused the law's own thrust steps; docs/estimation.md section 0.1)
     thrust_explains_jumps: bool = True
+    # the law acts on the external acceleration the swing blocks estimate (their e, beyond external_significance of
+    # its standard deviations): F^(4) of the chain gets (g / l) e, so that the vehicle tilts against a force on it
+    # as soon as the accelerometer shows it (False, the default: the chain of the pendulum model alone).
+    # docs/compare.md: the late gusts of slung sweep
+    external_feedforward: bool = False
+    external_significance: float = 3.0
     prior_pos: float = 0.05
     prior_vel: float = 0.1
     prior_bias: float = 0.1

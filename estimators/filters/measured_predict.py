@@ -9,6 +9,7 @@ gated updates (``measured_update``) and the public class.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from estimators.filters.measured_model import KIN, RATE, SWING, Block, MeasuredTuning
@@ -130,13 +131,29 @@ class MeasuredPrediction:
         ny, nyd = self._mean_at(self._tilt[1], t)
         psi, psi_rate = self._mean_at(self._head, t)
         if self.has_load:
-            ay_, ayd, _ = self._mean_at(self._swing[0], t)
-            ax_, axd, _ = self._mean_at(self._swing[1], t)
+            ay_, ayd, e_x = self._mean_at(self._swing[0], t)
+            ax_, axd, e_y = self._mean_at(self._swing[1], t)
         else:
-            ay_ = ayd = ax_ = axd = 0.0
-        return control_state_from_tilt(
+            ay_ = ayd = ax_ = axd = e_x = e_y = 0.0
+        est = control_state_from_tilt(
             self.k, (px, vx, ay_, ayd, nx, nxd), (py, vy, ax_, axd, ny, nyd), z, z_rate, psi, psi_rate
         )
+        if self.has_load and self.tuning.external_feedforward:
+            # the external acceleration on the vehicle (e, world, m/s^2) enters F^(4) as (g / l) e (a force d on
+            # the vehicle adds (g / (M l)) d to F^(4) = c (a + n)); only the part beyond external_significance of
+            # its standard deviations (at the block's last update), so that noise and model error stay out
+            k, z_sig = self.k, self.tuning.external_significance
+            g_l = k.g / k.l
+            fx, fy = est.fx, est.fy
+            sx = math.sqrt(self._swing[0].p[2][2])
+            sy = math.sqrt(self._swing[1].p[2][2])
+            dx = math.copysign(max(abs(e_x) - z_sig * sx, 0.0), e_x)
+            dy = math.copysign(max(abs(e_y) - z_sig * sy, 0.0), e_y)
+            est = est._replace(
+                fx=(fx[0], fx[1], fx[2], fx[3], fx[4] + g_l * dx, fx[5]),
+                fy=(fy[0], fy[1], fy[2], fy[3], fy[4] + g_l * dy, fy[5]),
+            )
+        return est
 
 
 __all__ = ["MeasuredPrediction"]
