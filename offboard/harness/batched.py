@@ -196,6 +196,7 @@ def simulate(
     seeds: list[int] | None = None,
     load_sensor: bool = True,
     plant_dt: float = 0.001,
+    tuning: Any = None,
 ) -> dict[str, Any]:
     """Run the scenarios (one reference for all: the first's; each its own gust and initial state) with their
     true vehicles together, as ``offboard.harness.sim.run`` runs each: returns arrays (ticks, B) of ``t`` (ticks,),
@@ -203,7 +204,8 @@ def simulate(
     ticks (``log_every = 0``: no time series), ``saturated`` (s), ``slack_steps``, ``min_tension`` and the per-run
     figures (``figures``: :class:`Figures`). ``estimator``: ``truth`` or ``kf`` (the measured-input filter on
     ``sensors``, one ``sim_bridge.plant.sensors.Preset`` per run, generator seeds ``seeds``); ``actuators``: ``ideal``
-    or ``mixer`` (four motors with each vehicle's lag)."""
+    or ``mixer`` (four motors with each vehicle's lag); ``tuning``: the filter's (``MeasuredTuning``; None: the
+    defaults)."""
     from estimators.filters.batched_kf import GYRO, IMU, BatchedMeasuredKalman
     from offboard.harness.batched_controllers import smc_step
     from offboard.harness.batched_sensors import RING, BatchMixer, Records, measure, schedule
@@ -236,7 +238,8 @@ def simulate(
     kf = recs = None
     if estimator == "kf":
         assert sensors is not None and seeds is not None
-        kf = BatchedMeasuredKalman(params.vehicle, B, load_sensor=load_sensor, rate_hz=1.0 / dt)
+        kw_kf: dict[str, Any] = {} if tuning is None else {"tuning": tuning}
+        kf = BatchedMeasuredKalman(params.vehicle, B, load_sensor=load_sensor, rate_hz=1.0 / dt, **kw_kf)
         runs = [
             schedule(
                 sensors[b],
@@ -406,6 +409,7 @@ def run_batch(config: Any, controller: str, runs: list[int]) -> list[dict[str, A
     kw: dict[str, Any] = {"estimator": "truth" if config.estimator == "truth" else "kf", "actuators": config.actuators}
     if kw["estimator"] == "kf":
         kw.update(sensors=[sweep.sensor_preset(config, d) for d in draws], seeds=[int(d["sensor_seed"]) for d in draws])
+        kw.update(tuning=registry.filter_tuning(controller))
     wall0 = time.perf_counter()
     log = simulate(scs, vehicles, params, log_every=0, **kw)
     wall = time.perf_counter() - wall0

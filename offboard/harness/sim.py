@@ -87,6 +87,7 @@ def run(
     controller: Controller | None = None,
     sensor_preset: Any = None,
     command_lag: bool = False,
+    tuning: Any = None,
 ) -> SimLog:
     """Simulate ``scenario`` with the true plant ``vehicle`` and controller ``params`` (whose nominal
     vehicle may differ, for robustness studies). ``controller``: the control law (default: the sliding-mode law
@@ -95,7 +96,8 @@ def run(
     non-finite. A named scenario's simulation part (initial plant state, disturbances) is built here
     (:func:`plant_scenario`). ``sensor_preset``: a ``sim_bridge.plant.sensors.Preset`` used instead of the named
     ``config.sensors`` (a sweep scales the noise and latency). ``command_lag``: with motors, the filter is given
-    the command through the nominal motor lag (``offboard.control.tick.ActuatorLag``), as in the live loop."""
+    the command through the nominal motor lag (``offboard.control.tick.ActuatorLag``), as in the live loop.
+    ``tuning``: the filter's tuning (``estimators.filters.factory.make_estimator``; None: its defaults)."""
     scenario = plant_scenario(scenario)
     if not (config.plant_dt > 0 and config.control_rate > 0):
         raise ValueError("plant_dt and control_rate must be > 0")
@@ -123,7 +125,7 @@ def run(
         from estimators.filters.factory import make_estimator
 
         estimator = make_estimator(
-            config.estimator, params.vehicle, load_sensor=config.load_sensor, rate_hz=config.control_rate
+            config.estimator, params.vehicle, load_sensor=config.load_sensor, rate_hz=config.control_rate, tuning=tuning
         )
 
     data = np.full((n_ticks, len(LOG_COLUMNS)), np.nan)

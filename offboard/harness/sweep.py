@@ -372,8 +372,16 @@ def run_one(config: SweepConfig, controller: str, run: int) -> dict[str, Any]:
     )
     params = smc.ControllerParams.for_vehicle(nominal)
     law = registry.make(controller, nominal)
+    tuning = registry.filter_tuning(controller) if config.estimator == "kf" else None
     log = sim.run(
-        sc, true_vehicle, params, sim_cfg, controller=law, sensor_preset=sensor_preset(config, p), command_lag=True
+        sc,
+        true_vehicle,
+        params,
+        sim_cfg,
+        controller=law,
+        sensor_preset=sensor_preset(config, p),
+        command_lag=True,
+        tuning=tuning,
     )
     row: dict[str, Any] = {"run": run, "controller": controller}
     row.update({k: p[k] for k in PARAMETERS})
