@@ -22,7 +22,9 @@ TELEMETRY_AGE_S = 0.02
 RHO_F = 100.0
 #: the ``smc`` row's pole scale (``smc.Gains.scaled``): every loop's poles at 0.9 of the paper's. With the paper's
 #: poles the law, its lead designed for the nominal 20 ms motors, diverged in the sweep's runs that start with a
-#: large swing on 33-39 ms motors and a light vehicle (docs/compare.md#what-is-left-per-failure)
+#: large swing on 33-39 ms motors and a light vehicle; the lower poles slow the late gusts' recovery, which the
+#: external force fed forward (:func:`filter_tuning`) restores
+#: (docs/compare.md#the-smc-row-robust-to-the-sweeps-motors-and-late-gusts)
 GAIN_SCALE = 0.9
 
 
