@@ -64,3 +64,22 @@ def test_compare_writes_the_table_json_and_series(tmp_path: Path, capsys: pytest
     assert len(series) > 100
     with pytest.raises(UserError):
         compare.cases("slalom")
+
+
+def test_compare_json_holds_a_diverged_run_s_infinite_figures_as_null(tmp_path) -> None:
+    """A diverged row (its torque RMS overflowed to inf) must not stop ``slung compare`` from writing compare.json:
+    non-finite figures are written as JSON null, everything else unchanged, and the file is strict JSON."""
+    import json
+    import math
+
+    import numpy as np
+
+    from offboard.harness.compare_cli import _write_json
+
+    figures = {"smc": {"peak_swing_rad": 0.28, "settle_s": np.float64(13.8)}}
+    figures["smc-attitude"] = {"peak_swing_rad": 0.245, "effort_torque_rms_nm": math.inf, "settle_s": math.nan}
+    _write_json(tmp_path / "compare.json", figures)
+    text = (tmp_path / "compare.json").read_text()
+    back = json.loads(text, parse_constant=lambda c: pytest.fail(f"non-strict JSON constant {c}"))
+    assert back["smc"] == {"peak_swing_rad": 0.28, "settle_s": 13.8}
+    assert back["smc-attitude"] == {"peak_swing_rad": 0.245, "effort_torque_rms_nm": None, "settle_s": None}

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -126,8 +127,20 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def finite_or_null(obj: Any) -> Any:
+    """``obj`` with every non-finite float (a diverged run's effort or error) replaced by None: strict JSON (``null``)
+    instead of the ``Infinity`` / ``NaN`` that JSON does not have; the table printed beside it shows ``inf``."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite_or_null(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_or_null(v) for v in obj]
+    return obj
+
+
 def _write_json(path: Path, obj: Any) -> None:
-    text = json.dumps(obj, indent=2, sort_keys=False, allow_nan=False)
+    text = json.dumps(finite_or_null(obj), indent=2, sort_keys=False, allow_nan=False)
     write_atomic(path, lambda p: p.write_text(text + "\n", encoding="utf-8"))
 
 
