@@ -237,7 +237,7 @@ def run_case(
 
     params = smc.ControllerParams.for_vehicle(vehicle, switching=switching, epsilon=epsilon)
     law = registry.make(controller, vehicle, switching=switching, epsilon=epsilon)
-    tuning = registry.filter_tuning(controller) if config.estimator == "kf" else None
+    tuning = registry.filter_tuning(controller, config.estimator)
     log = sim.run(case.scenario, vehicle, params, config, controller=law, tuning=tuning)
     return CaseResult(controller, case, case_figures(case, log), log)
 

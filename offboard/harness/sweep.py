@@ -372,7 +372,7 @@ def run_one(config: SweepConfig, controller: str, run: int) -> dict[str, Any]:
     )
     params = smc.ControllerParams.for_vehicle(nominal)
     law = registry.make(controller, nominal)
-    tuning = registry.filter_tuning(controller) if config.estimator == "kf" else None
+    tuning = registry.filter_tuning(controller, config.estimator)
     log = sim.run(
         sc,
         true_vehicle,
