@@ -148,6 +148,8 @@ def test_implausible_or_unreadable_vehicle_files_are_one_line_errors(
         (("--scenario", "hover", "--swing-limit", "1e9"), "swing limit must be within 0.05..1.2 rad"),
         (("--scenario", "hover", "--divergence-limit", "1e6"), "divergence limit must be within 0.05..10 m"),
         (("--scenario", "hover", "--tracking-limit", "1e6"), "tracking-error limit must be within 0.05..100 m"),
+        (("--scenario", "hover", "--settle", "1e4"), "settle time must be within 0..600 s"),
+        (("--scenario", "hover", "--settle-swing", "0.9"), "settle swing must be within 0.005 rad..the swing limit"),
         (("--trajectory", "{low}"), "height -5 m above the take-off point at t = 0 s is outside the plausible"),
         (("--trajectory", "{high}"), "height 1e+06 m above the take-off point"),
     ],

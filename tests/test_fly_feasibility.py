@@ -101,3 +101,46 @@ def test_force_flies_it_and_the_watchdog_catches_what_the_check_predicted(tmp_pa
     assert m["feasibility"]["forced"] and not m["feasibility"]["feasible"]
     assert m["flight"]["ended_by"] == "swing_limit"
     assert summary["armed"] and summary["mode"] == "AUTO.LOITER"  # left holding, as every abort
+
+
+def _last_swing_amplitude(folder: Path) -> tuple[float, float]:
+    """(t_ref, swing amplitude) of the flight's last tick, from timeseries_live.csv (the loop's own estimate)."""
+    import csv
+    import math
+
+    from estimators.model.vehicle import Vehicle
+
+    rows = list(csv.DictReader((folder / "timeseries_live.csv").open(encoding="utf-8")))
+    r = {k: float(v) for k, v in rows[-1].items() if k in ("t_ref",) or k.startswith("est_alpha")}
+    v = Vehicle()
+    w2 = v.gravity / v.cable_length  # as the loop (offboard.flight.loop.FlightLoop.swing_amplitude)
+    amp = math.sqrt(
+        r["est_alpha_x"] ** 2 + r["est_alpha_y"] ** 2 + (r["est_alpha_x_rate"] ** 2 + r["est_alpha_y_rate"] ** 2) / w2
+    )
+    return r["t_ref"], amp
+
+
+def test_a_reference_that_ends_with_the_load_swinging_is_flown_on_not_handed_over(tmp_path: Path) -> None:
+    # 0.3 m in 1.6 s, ending on arrival, forced, with the torque-level law: the saturated hop arrives with the load
+    # swinging about 0.35 rad. Handed over at once (--settle 0, the loop before) the autopilot's hold gets a
+    # swinging load; by default the loop flies on and only a settled swing, the settle time-out or a watchdog ends it
+    for sub in ("at-once", "settle"):
+        (tmp_path / sub).mkdir()
+    hop = "[[waypoint]]\nt = 0.0\nx = 0.0\ny = 0.0\nz = 1.0\n[[waypoint]]\nt = 1.6\nx = 0.3\ny = 0.1\nz = 1.1\n"
+    m0, f0, _ = _fly_emulated(tmp_path / "at-once", hop, "--force", "--law", "torque", "--settle", "0")
+    assert m0["flight"]["ended_by"] == "completed"
+    t_end, amp_end = _last_swing_amplitude(f0)
+    assert t_end <= 1.6 + 0.01 and amp_end > 0.1  # the case is real: a swinging hand-over
+    m, f, summary = _fly_emulated(tmp_path / "settle", hop, "--force", "--law", "torque", "--settle", "3")
+    events = json.loads((f / "events.json").read_text())["loop"]
+    settle = [e for e in events if e["reason"].startswith("end of the reference with the load swinging")]
+    assert len(settle) == 1
+    t_last, amp_last = _last_swing_amplitude(f)
+    assert t_last > 1.6 + 0.05  # it flew on past the reference's end
+    ended = m["flight"]["ended_by"]
+    if ended == "completed":  # settled, or the time-out said so
+        kinds = [e["kind"] for e in events]
+        assert amp_last <= 0.05 or "settle_timeout" in kinds
+    else:  # a watchdog ended it, with the vehicle left holding
+        assert ended == "swing_limit"
+    assert summary["armed"] and summary["mode"] == "AUTO.LOITER"

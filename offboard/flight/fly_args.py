@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from estimators.errors import UserError
-from offboard.cli_args import add_controller_arguments, add_no_figures_argument, positive_float
+from offboard.cli_args import add_controller_arguments, add_no_figures_argument, non_negative_float, positive_float
 from offboard.control.options import EndAction, Law, Output, values
 from offboard.flight.latency import DEFAULT_LIMIT_S as DEFAULT_LATENCY_LIMIT_S
 from offboard.flight.link.setpoints import MASKS
@@ -131,6 +131,21 @@ def add_flight_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None
         default=0.8,
         metavar="RAD",
         help="abort to hold above this estimated swing angle, rad (default 0.8)",
+    )
+    p.add_argument(
+        "--settle",
+        type=non_negative_float,
+        default=5.0,
+        metavar="S",
+        help="after the reference ends, keep flying it for up to S s while the load still swings (default 5; 0: "
+        "hand over at once)",
+    )
+    p.add_argument(
+        "--settle-swing",
+        type=positive_float,
+        default=0.05,
+        metavar="RAD",
+        help="the estimated swing amplitude below which the flight ends, rad (default 0.05)",
     )
     p.add_argument(
         "--divergence-limit",

@@ -146,6 +146,8 @@ def build_loop_config(
         lockstep=lockstep,
         stale_s=args.stale_limit,
         swing_limit_rad=args.swing_limit,
+        settle_s=getattr(args, "settle", 5.0),
+        settle_swing_rad=getattr(args, "settle_swing", 0.05),
         divergence_m=args.divergence_limit,
         tracking_limit_m=getattr(args, "tracking_limit", 2.0),
         latency_limit_s=getattr(args, "latency_limit", DEFAULT_LATENCY_LIMIT_S),

@@ -846,6 +846,8 @@ class FlightLoop:
         stats = self.stats
         link_lat = self.latency
         budget = self.horizon_budget_s
+        settle_s = cfg.settle_s
+        last_est: ControlState | None = None
         t_act = t_obs = t_v
         while True:
             t_v = t_obs  # the observation clock of the previous tick (t_v becomes the action time below)
@@ -875,14 +877,14 @@ class FlightLoop:
                 t_act = max(t_v + min(link_lat.horizon(), budget), t_act)
                 t_v = t_act
             # the demo's truth (metrics only), before this tick's setpoint lets a lockstep plant move on
-            truth = probe(t_obs) if probe is not None and t_v - t0 <= self.duration + 1e-9 else None
+            truth = probe(t_obs) if probe is not None and t_v - t0 <= self.duration + settle_s + 1e-9 else None
             tick_start = time.monotonic()
             perf0 = time.perf_counter()
             self.t_vehicle = t_v
             t_ref = t_v - t0
             if self._signal is not None:
                 raise _AbortError("signal", f"signal {self._signal} received", cfg.signal_action)
-            if t_ref > self.duration + 1e-9:
+            if t_ref > self.duration + 1e-9 and self._settled(last_est, t_ref - self.duration):
                 break
             self._watchdogs(t_obs, tick_start)
             # ---- estimate (at the action time), reference, control, map, feed the filter (offboard.control.tick) ---
@@ -944,6 +946,7 @@ class FlightLoop:
                 )
             )
             self._check_swing(est)
+            last_est = est
             v = self.supervisor.check_tracking(est.fx[0] - rfx[0], est.fy[0] - rfy[0], est.z - rz[0])
             if v is not None:
                 raise _AbortError(v.kind, v.reason, v.action)
@@ -995,6 +998,42 @@ class FlightLoop:
                 raise _AbortError("telemetry_stale", f"no {k} telemetry for {age:.3f} s (limit {cfg.stale_s:g} s)")
         self._supervision_verdict()
         self._measure_link(t_v)
+
+    def swing_amplitude(self, est: ControlState) -> float:
+        """The load's swing amplitude in ``est`` (rad): the angle an undamped pendulum with this angle and rate
+        would reach, both axes together (``sqrt(a^2 + (a' / w)^2)``, ``w`` the pendulum frequency)."""
+        w2 = self.k.g / self.k.l
+        return math.sqrt(est.alpha_x**2 + est.alpha_y**2 + (est.alpha_x_rate**2 + est.alpha_y_rate**2) / w2)
+
+    def _settled(self, est: ControlState | None, past_end_s: float) -> bool:
+        """After the reference's end (``past_end_s`` s ago): whether the flight may end now, i.e. the load's swing
+        amplitude is within ``settle_swing_rad`` or ``settle_s`` has passed (reported either way). A trajectory that
+        ends with the load swinging would otherwise hand a swinging load to the autopilot's hold, which does not
+        damp it (PX4's and ArduPilot's position controllers know nothing of the load)."""
+        cfg = self.cfg
+        amp = self.swing_amplitude(est) if est is not None else 0.0
+        if amp <= cfg.settle_swing_rad:
+            if self._settling:
+                self.event("phase", f"the swing settled ({amp:.3f} rad) {past_end_s:.2f} s after the reference's end")
+            return True
+        if past_end_s > cfg.settle_s:
+            if cfg.settle_s > 0.0:
+                self.event(
+                    "settle_timeout",
+                    f"the load still swings {amp:.3f} rad {cfg.settle_s:g} s after the reference's end "
+                    f"(settle bound {cfg.settle_swing_rad:g} rad): handing over anyway",
+                )
+            return True
+        if not self._settling:
+            self._settling = True
+            self.event(
+                "phase",
+                f"end of the reference with the load swinging {amp:.3f} rad: flying on until it is within "
+                f"{cfg.settle_swing_rad:g} rad (at most {cfg.settle_s:g} s)",
+            )
+        return False
+
+    _settling = False
 
     def _check_swing(self, est: ControlState) -> None:
         cfg = self.cfg

@@ -96,6 +96,11 @@ class LoopConfig:
     stale_s: float = 0.1
     divergence_m: float = 1.0
     swing_limit_rad: float = 0.8
+    #: after the reference's end, the longest the loop keeps flying it (a reference that ends at rest holds its end
+    #: point) while the load's estimated swing amplitude is above ``settle_swing_rad``, s (0: end at once)
+    settle_s: float = 5.0
+    #: the swing amplitude (rad, both axes, angle and rate over the pendulum frequency) below which the loop ends
+    settle_swing_rad: float = 0.05
     end_action: str = "hold"
     signal_action: str = "hold"
     exit_timeout_s: float = 2.0
@@ -125,6 +130,13 @@ class LoopConfig:
             raise ValueError(f"staleness limit must be within 0.01..5 s, got {self.stale_s:g}")
         if not (0.05 <= self.swing_limit_rad <= 1.2):  # 1.2 rad: 69 degrees, beyond it the load is lost anyway
             raise ValueError(f"swing limit must be within 0.05..1.2 rad, got {self.swing_limit_rad:g}")
+        if not (0.0 <= self.settle_s <= 600.0):
+            raise ValueError(f"settle time must be within 0..600 s, got {self.settle_s:g}")
+        if not (0.005 <= self.settle_swing_rad <= self.swing_limit_rad):
+            raise ValueError(
+                f"settle swing must be within 0.005 rad..the swing limit ({self.swing_limit_rad:g}), "
+                f"got {self.settle_swing_rad:g}"
+            )
         if not (0.05 <= self.divergence_m <= 10.0):
             raise ValueError(f"divergence limit must be within 0.05..10 m, got {self.divergence_m:g}")
         for a in (self.end_action, self.signal_action):
