@@ -131,12 +131,17 @@ def test_a_reference_that_ends_with_the_load_swinging_is_flown_on_not_handed_ove
     assert m0["flight"]["ended_by"] == "completed"
     t_end, amp_end = _last_swing_amplitude(f0)
     assert t_end <= 1.6 + 0.01 and amp_end > 0.1  # the case is real: a swinging hand-over
+    assert m0["settle"]["flown_s"] == 0.0 and m0["settle"]["swing_at_handover_rad"] == pytest.approx(amp_end)
     m, f, summary = _fly_emulated(tmp_path / "settle", hop, "--force", "--law", "torque", "--settle", "3")
     events = json.loads((f / "events.json").read_text())["loop"]
     settle = [e for e in events if e["reason"].startswith("end of the reference with the load swinging")]
     assert len(settle) == 1
     t_last, amp_last = _last_swing_amplitude(f)
     assert t_last > 1.6 + 0.05  # it flew on past the reference's end
+    st = m["settle"]  # reported apart; the metrics stay the reference's
+    assert st["flown_s"] == pytest.approx(t_last - 1.6, abs=1e-6) and st["swing_at_end_rad"] > 0.1
+    assert st["swing_at_handover_rad"] == pytest.approx(amp_last)
+    assert m["duration_s"] <= 1.6 + 0.01
     ended = m["flight"]["ended_by"]
     if ended == "completed":  # settled, or the time-out said so
         kinds = [e["kind"] for e in events]

@@ -6,6 +6,7 @@ that ``metrics.json``, ``timeseries.csv``, the figures and ``report.html`` are t
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import io
 import math
 from pathlib import Path
@@ -26,6 +27,30 @@ from offboard.flight.supervisor import exit_code
 from offboard.logs.estimate_columns import SIGMA_COLUMNS
 from offboard.logs.runlog import COL, LOG_COLUMNS, Scenario, SimConfig, SimLog
 from offboard.outputs import write_json_atomic, write_text_atomic
+
+
+def settle_summary(rows: np.ndarray, result: FlightResult, vehicle: Vehicle) -> dict[str, Any]:
+    """What the loop flew after the reference's end while the load settled (``LoopConfig.settle_s``): how long (s),
+    the load's estimated swing amplitude (rad, ``offboard.flight.loop.FlightLoop.swing_amplitude``) at the
+    reference's end and at the hand-over, and whether the time-out ended it."""
+    w2 = vehicle.gravity / vehicle.cable_length
+    L = LIVE_COL
+
+    def amplitude(r: np.ndarray) -> float:
+        a = r[L["est_alpha_x"]] ** 2 + r[L["est_alpha_y"]] ** 2
+        return float(np.sqrt(a + (r[L["est_alpha_x_rate"]] ** 2 + r[L["est_alpha_y_rate"]] ** 2) / w2))
+
+    t_ref = rows[:, L["t_ref"]] if len(rows) else np.zeros(0)
+    end = result.reference_duration_s
+    inside = np.flatnonzero(t_ref <= end + 1e-9)
+    after = len(rows) - len(inside)
+    return {
+        "flown_s": float(t_ref[-1] - end) if after else 0.0,
+        "ticks": int(after),
+        "swing_at_end_rad": amplitude(rows[inside[-1]]) if len(inside) else None,
+        "swing_at_handover_rad": amplitude(rows[-1]) if len(rows) else None,
+        "timed_out": any(e.kind == "settle_timeout" for e in result.events),
+    }
 
 
 def to_sim_log(
@@ -171,7 +196,11 @@ def write_flight_outputs(
         "warnings": list(result.warnings),
     }
     write_json_atomic(out_dir / "events.json", events)
-    log, source = to_sim_log(result, scenario, vehicle, cfg.rate_hz, wall, result.load_sensor)
+    # the metrics are the reference's: the ticks flown after its end while the load settled are reported apart
+    t_ref = rows[:, LIVE_COL["t_ref"]]
+    in_ref = t_ref <= result.reference_duration_s + 1e-9
+    flown = result if bool(np.all(in_ref)) else dataclasses.replace(result, rows=rows[in_ref].tolist())
+    log, source = to_sim_log(flown, scenario, vehicle, cfg.rate_hz, wall, result.load_sensor)
     if on_log is not None:
         on_log(log)
     t_ref0 = rows[0, LIVE_COL["t_vehicle"]] - rows[0, LIVE_COL["t_ref"]] if len(rows) else None
@@ -189,6 +218,7 @@ def write_flight_outputs(
             m.get("estimation", {}).pop("within_2sigma", None)
     else:
         m = {"scenario": scenario.name, "duration_s": 0.0, "completed": False, "all_finite": True}
+    m["settle"] = settle_summary(rows, result, vehicle)
     m.setdefault("config", {})
     m["config"].update(
         {

@@ -773,6 +773,7 @@ class FlightLoop:
             latency=self.latency.summary(),
             filter_delay_s=self.filter_delay_s,
             gain_scale=self.gain_scale,
+            reference_duration_s=self.duration,
         )
 
     def _fly(self, origin: tuple[float, float]) -> None:

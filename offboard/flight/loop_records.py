@@ -4,6 +4,7 @@ returns. SI units and radians, model frame; times in s (vehicle clock unless nam
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -235,3 +236,6 @@ class FlightResult:
     #: the pole scale of the torque-level law's gains for the measured loop delay (``offboard.control.delay_margin``;
     #: 1: the paper's gains; replay applies the same)
     gain_scale: float = 1.0
+    #: the reference's duration (s): rows with a later ``t_ref`` were flown after its end while the load settled
+    #: (``LoopConfig.settle_s``)
+    reference_duration_s: float = math.inf
