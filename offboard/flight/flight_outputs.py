@@ -285,7 +285,7 @@ def write_flight_outputs(
             out_dir,
             figures=figures,
             command=getattr(args, "command", None) or "fly",
-            live=rows,
+            live=rows[in_ref],  # the same ticks as the log (the settle after the end is not drawn)
             live_col=LIVE_COL,
             events=events,
         )
