@@ -14,7 +14,16 @@ from test_estimators import V, truth_state
 
 from estimators.filters.linear_block import van_loan_discretization
 from estimators.filters.measured_kf import MeasuredKalmanEstimator, acceptance
-from estimators.filters.small_kf import kinematic_model, pendulum_model, rate_model
+from estimators.filters.small_kf import (
+    kinematic_model,
+    pendulum_model,
+    predict,
+    predict_kinematic,
+    predict_pendulum,
+    predict_rate,
+    rate_model,
+    update_row,
+)
 from estimators.model.measurements import Attitude, Imu, Measurement, PositionVelocity
 from sim_bridge.plant import dynamics
 
@@ -49,6 +58,60 @@ def test_closed_forms_equal_van_loan(h: float) -> None:
     cphi, cq = rate_model(h, q_n)
     np.testing.assert_allclose(cphi, phi, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(cq, q, rtol=1e-7, atol=1e-18)
+
+
+def _random_block(rng: np.random.Generator, n: int) -> tuple[list[float], list[list[float]]]:
+    """A mean and a symmetric positive-definite covariance of ``n`` states, as lists (the filter's storage)."""
+    a = rng.normal(size=(n, n))
+    p = a @ a.T + 0.1 * np.eye(n)
+    return list(rng.normal(size=n)), [[float(p[i][j]) for j in range(n)] for i in range(n)]
+
+
+@pytest.mark.parametrize("h", [1e-6, 0.000937, 0.004, 0.0213, 0.3])
+def test_multiplied_out_predictions_equal_the_general_ones_to_the_bit(h: float) -> None:
+    """The filter's hot-path predictions (``predict_kinematic``, ``predict_pendulum``, ``predict_rate``: the
+    transitions' zeros and ones multiplied out) give the very floats of the general prediction with the models'
+    matrices, with and without an input (the series branch of the pendulum at the shortest step). Exact equality,
+    so that the batched filter, which follows the general expressions, still equals the scalar one."""
+    rng = np.random.default_rng(7)
+    for u in (0.0, 1.7, -0.4):
+        x, p = _random_block(rng, 3)
+        x2, p2 = list(x), [list(r) for r in p]
+        phi, gam, q = kinematic_model(h, 0.005, 1e-3, 2e-4)
+        predict(x, p, phi, gam, u, q)
+        predict_kinematic(x2, p2, h, 0.005, 1e-3, 2e-4, u)
+        assert (x2, p2) == (x, p)
+        x, p = _random_block(rng, 3)
+        x2, p2 = list(x), [list(r) for r in p]
+        phi, gam, q = pendulum_model(h, 9.81 / 0.3, 0.05, 0.5)
+        predict(x, p, phi, gam, u, q)
+        predict_pendulum(x2, p2, h, 9.81 / 0.3, 0.05, 0.5, u)
+        assert (x2, p2) == (x, p)
+        x, p = _random_block(rng, 2)
+        x2, p2 = list(x), [list(r) for r in p]
+        phi, q = rate_model(h, 20.0)
+        predict(x, p, phi, [0.5 * h * h, h], u, q)
+        predict_rate(x2, p2, h, 20.0, u)
+        assert (x2, p2) == (x, p)
+
+
+def test_scalar_row_update_equals_the_kalman_update() -> None:
+    """``update_row`` (unrolled for three states) is the Kalman update ``K = P h / (h P h + r)``: mean and
+    covariance against numpy's, and a gated innovation changes nothing."""
+    rng = np.random.default_rng(3)
+    x, p = _random_block(rng, 3)
+    hrow, z, r = [0.4, 0.0, 1.0], 0.3, 0.02
+    xa, pa = np.array(x), np.array(p)
+    hv = np.array(hrow)
+    s = hv @ pa @ hv + r
+    k = pa @ hv / s
+    ok, y, hph = update_row(x, p, hrow, z, r, gate=math.inf)
+    assert ok and y == pytest.approx(z - hv @ xa) and hph == pytest.approx(s - r)
+    np.testing.assert_allclose(x, xa + k * (z - hv @ xa), rtol=1e-12)
+    np.testing.assert_allclose(p, pa - np.outer(k, k) * s, rtol=1e-12, atol=1e-15)
+    before = (list(x), [list(row) for row in p])
+    ok, _, _ = update_row(x, p, hrow, z + 100.0, r, gate=9.0)
+    assert not ok and (x, p) == before
 
 
 def _hover_stream(seed: int, seconds: float, jitter_us: bool) -> tuple[list[Measurement], list[float]]:

@@ -12,7 +12,7 @@ from collections import deque
 
 from estimators.filters.fusion import attitude_tilt
 from estimators.filters.measured_model import KIN, Block, Channel, Gyro, MeasuredTuning
-from estimators.filters.small_kf import update_one, update_row
+from estimators.filters.small_kf import apply_gain, update_one, update_row
 from estimators.model.frames import wrap_angle
 from estimators.model.measurements import Attitude, Imu, LoadAngle, Measurement, PositionVelocity
 from estimators.model.vehicle import Vehicle
@@ -22,6 +22,9 @@ KINDS: tuple[str, ...] = ("pos", "att", "imu", "load")
 _KIND_OF = {PositionVelocity: "pos", Attitude: "att", Imu: "imu", LoadAngle: "load"}
 #: the update streams of each measurement kind (``estimators.filters.factory.INNOVATION_STREAMS``)
 _STREAMS_OF = {"pos": ("pos", "z"), "att": ("tilt", "psi"), "imu": ("acc",), "load": ("load",)}
+#: the counters of each kind (:meth:`MeasuredKalmanEstimator.stats`), named once
+_RECORDS_KEY = {k: "records_" + k for k in KINDS}
+_REFUSED_KEY = {k: "refused_" + k for k in KINDS}
 STREAMS = ("pos", "z", "tilt", "psi", "acc", "load")
 
 
@@ -54,10 +57,12 @@ class MeasuredUpdates:
     def _pair(self, name: str, b: Block, z0: float, z1: float, c0: str, c1: str) -> bool:
         """Gated updates of states 0 and 1 of ``b`` with channels ``c0``, ``c1`` (their adapted variances), one
         channel at a time: a position that jumps (an EKF's GNSS correction) must not cost the velocity its update."""
-        y0, s0 = z0 - b.x[0], b.p[0][0] + self._ch[c0].value()
-        ok0 = self._one(name, b, 0, z0, c0)
         if b.role == KIN:
+            y0, s0 = z0 - b.x[0], b.p[0][0] + self._ch[c0].value()
+            ok0 = self._one(name, b, 0, z0, c0)
             self._learn_wander(b.axis, y0, s0)
+        else:
+            ok0 = self._one(name, b, 0, z0, c0)
         return self._one(name, b, 1, z1, c1) and ok0
 
     def _learn_wander(self, i: int, y: float, s: float) -> None:
@@ -77,18 +82,24 @@ class MeasuredUpdates:
         self._nu_n[name] += 1
 
     def _one(self, name: str, b: Block, i: int, z: float, chan: str) -> bool:
+        """Gated update of ``b``'s state ``i`` measured directly (``small_kf.update_one``, its gate test written out
+        here: 12-16 of these per control tick), the innovation counted and the channel's noise learned."""
         ch = self._ch[chan]
         r = ch.value()
-        pii = b.p[i][i]
-        y = z - b.x[i]
-        self._innovation(name, y, pii + r)
+        x, p = b.x, b.p
+        pii = p[i][i]
+        y = z - x[i]
+        s = pii + r
+        self._nu2[name] += y * y / s  # as _innovation
+        self._nu_n[name] += 1
         gate = self._gate[1]
-        ok = update_one(b.x, b.p, i, z, r, gate) is not None
-        if not ok and self._gated(name):
-            update_one(b.x, b.p, i, z, r, math.inf)
-        ch.learn(y, pii, r, gate, self._rate)
+        ok = s > 0.0 and y * y <= gate * s
         if ok:
+            apply_gain(x, p, [row[i] for row in p], y, s)
             self._gated_run[name] = 0
+        elif self._gated(name):
+            update_one(x, p, i, z, r, math.inf)
+        ch.learn(y, pii, r, gate, self._rate)
         return ok
 
     def _row(self, name: str, b: Block, hrow: list[float], z: float, chan: str, extra_r: float = 0.0) -> bool:
@@ -105,48 +116,55 @@ class MeasuredUpdates:
         return ok
 
     def _fuse(self, m: Measurement | Gyro) -> None:
-        if isinstance(m, Gyro):
+        kind = _KIND_OF.get(type(m))  # by the exact type: one dict look-up, not a chain of isinstance
+        if kind is None:  # the IMU's gyro, queued with the attitude records
+            assert isinstance(m, Gyro), f"not a measurement record: {type(m).__name__}"
             self._fuse_gyro(m)
             return
         t = m.t
         ok = True
-        kind = _KIND_OF[type(m)]
         nu2, cnt = self._nu2, self._nu_n
         for s in _STREAMS_OF[kind]:  # this record's innovations replace the previous record's
             nu2[s] = 0.0
             cnt[s] = 0
-        if isinstance(m, PositionVelocity):
+        if kind == "pos":
             kx, ky, kz = self._kin
-            for b in self._kin:
-                self._advance(b, t)
+            advance = self._advance
+            advance(kx, t)
+            advance(ky, t)
+            advance(kz, t)
             ok &= self._pair("pos", kx, m.x, m.vx, "pos_xy", "vel_xy")
             ok &= self._pair("pos", ky, m.y, m.vy, "pos_xy", "vel_xy")
             ok &= self._pair("z", kz, m.z, m.vz, "pos_z", "vel_z")
-        elif isinstance(m, Attitude):
+        elif kind == "att":
             tilt = attitude_tilt(m.phi, m.theta, m.psi, m.p, m.q, m.r)
             if tilt is None:  # Euler rates singular: pitched to the vertical
                 self._stats["not_used"] += 1
                 return
             nx, ny, nxd, nyd, psi_rate = tilt
-            for b in (*self._tilt, self._head):
-                self._advance(b, t)
-            ok &= self._pair("tilt", self._tilt[0], nx, nxd, "tilt", "tilt_rate")
-            ok &= self._pair("tilt", self._tilt[1], ny, nyd, "tilt", "tilt_rate")
-            psi_est = self._head.x[0]
-            ok &= self._pair("psi", self._head, psi_est + wrap_angle(m.psi - psi_est), psi_rate, "yaw", "yaw_rate")
-        elif isinstance(m, Imu):
+            tx, ty, hd = self._tilt[0], self._tilt[1], self._head
+            advance = self._advance
+            advance(tx, t)
+            advance(ty, t)
+            advance(hd, t)
+            ok &= self._pair("tilt", tx, nx, nxd, "tilt", "tilt_rate")
+            ok &= self._pair("tilt", ty, ny, nyd, "tilt", "tilt_rate")
+            psi_est = hd.x[0]
+            ok &= self._pair("psi", hd, psi_est + wrap_angle(m.psi - psi_est), psi_rate, "yaw", "yaw_rate")
+        elif kind == "imu":
             ok = self._fuse_imu(m)
-        elif isinstance(m, LoadAngle):
-            for b in self._swing:
-                self._advance(b, t)
-            ok &= self._row("load", self._swing[0], [1.0, 0.0, 0.0], m.alpha_y, "load")
-            ok &= self._row("load", self._swing[1], [1.0, 0.0, 0.0], m.alpha_x, "load")
+        else:  # a cable angle
+            sy, sx = self._swing
+            self._advance(sy, t)
+            self._advance(sx, t)
+            ok &= self._row("load", sy, [1.0, 0.0, 0.0], m.alpha_y, "load")
+            ok &= self._row("load", sx, [1.0, 0.0, 0.0], m.alpha_x, "load")
         st = self._stats
         st["accepted"] += 1
-        st["records_" + kind] += 1
+        st[_RECORDS_KEY[kind]] += 1
         if not ok:
             st["gated_outliers"] += 1
-            st["refused_" + kind] += 1
+            st[_REFUSED_KEY[kind]] += 1
 
     def _fuse_imu(self, m: Imu) -> bool:
         """The accelerometer: the swing measurement (with a load), then the new acceleration input from ``m.t``."""
@@ -158,7 +176,9 @@ class MeasuredUpdates:
                 self._advance(b, t)
         # the attitude at the sample's time (the tilt and heading blocks may already be a few ms ahead)
         tx, ty, hd = self._tilt[0], self._tilt[1], self._head
-        nx, ny, psi = (b.x[0] - b.x[1] * (b.t - t) for b in (tx, ty, hd))
+        nx = tx.x[0] - tx.x[1] * (tx.t - t)
+        ny = ty.x[0] - ty.x[1] * (ty.t - t)
+        psi = hd.x[0] - hd.x[1] * (hd.t - t)
         cp, sp = math.cos(psi), math.sin(psi)
         theta, phi = nx * cp + ny * sp, nx * sp - ny * cp
         sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
@@ -173,15 +193,16 @@ class MeasuredUpdates:
             self._fz += a * (min(max(az, 0.2 * self._g), 3.0 * self._g) - self._fz)
             gain = self._m_over_M * self._fz
             bx, by = cp * ax - sp * ay, sp * ax + cp * ay  # body-horizontal specific force, heading-rotated
-            for i, (zi, ni, tb) in enumerate(((bx, nx, self._tilt[0]), (by, ny, self._tilt[1]))):
-                extra = gain * gain * tb.p[0][0]  # the tilt's own uncertainty
-                ok &= self._row("acc", self._swing[i], [gain, 0.0, 1.0], zi - gain * ni, "acc", extra)
+            hrow = [gain, 0.0, 1.0]  # the tilt's own uncertainty adds to the noise
+            ok &= self._row("acc", self._swing[0], hrow, bx - gain * nx, "acc", gain * gain * tx.p[0][0])
+            ok &= self._row("acc", self._swing[1], hrow, by - gain * ny, "acc", gain * gain * ty.p[0][0])
         u = [cp * hx - sp * hy, sp * hx + cp * hy, hz - self._g]
         if self._imu_fresh(t):  # as an input, the sample must be plausible next to the previous one
             ch = self._ch["acc_in"]
             var = ch.value()
             gate = self._gate[3]
-            dy = [u[i] - self._u[i] for i in range(3)]
+            u0 = self._u
+            dy = (u[0] - u0[0], u[1] - u0[1], u[2] - u0[2])
             # What the commanded thrust can explain: a thrust change dT moves the vehicle's specific force by at
             # most dT / M (the load's inertia only lessens it); the change between two samples lies within the
             # range of the thrusts pushed over the last imu_timeout_s (the samples' latency puts it a few tens of
@@ -190,7 +211,7 @@ class MeasuredUpdates:
             # thrust steps were refused in turn: 25 of 200 sweep runs diverged (docs/compare.md).
             th = self._thrusts
             jump = (max(th) - min(th)) / self.vehicle.mass_vehicle if th else 0.0
-            plausible = sum(d * d for d in dy) <= gate * var + jump * jump
+            plausible = dy[0] * dy[0] + dy[1] * dy[1] + dy[2] * dy[2] <= gate * var + jump * jump
             for d in dy:
                 ch.learn(d, 0.0, var, gate, self._rate)
             if plausible:
