@@ -5,7 +5,9 @@ Parts: the whole tick (``ControlTick.__call__``: estimate, reference, controller
 which the filter's estimate (``estimate_ahead``), each record it fuses and its output state, the controller step and
 the setpoint mapping; outside the tick the setpoint's encoding and ``sendto`` (``FlightLoop._send``) and the
 watchdogs. Medians, p90 and p99 in microseconds; the loop's own compute figure (tick start to setpoint written)
-beside them. The timers add about a microsecond per call.
+beside them. The timers add about a microsecond per call. Then, as a baseline measured in the same run, what one
+``sendto`` of a setpoint-sized datagram to a receiver blocked in ``recv`` costs alone on this machine (at the
+loop's rate and priority): the kernel's wake-up of the receiver, which no Python in the loop can remove.
 
     python bench/bench_loop_parts.py [--rate 250] [--duration 20] [--rt-priority N] [--realtime]
 """
@@ -14,6 +16,8 @@ from __future__ import annotations
 
 import argparse
 import functools
+import os
+import socket
 import sys
 import tempfile
 import time
@@ -51,6 +55,33 @@ def _timed(owner: Any, name: str, label: str, times: dict[str, list[float]]) -> 
 
     setattr(owner, name, timed)
     return lambda: setattr(owner, name, inner)
+
+
+def sendto_alone(rate_hz: float, n: int = 2000) -> np.ndarray:
+    """Seconds per ``sendto`` of 51 bytes (a SET_ATTITUDE_TARGET) to a child process blocked in ``recv`` on
+    127.0.0.1, one every period at ``rate_hz``."""
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    pid = os.fork()
+    if pid == 0:  # the receiver: blocked in recv until told to stop
+        while rx.recv(64) != b"q":
+            pass
+        os._exit(0)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    addr, buf, out = rx.getsockname(), b"x" * 51, np.empty(n)
+    clock = time.perf_counter
+    try:
+        for i in range(n):
+            t0 = clock()
+            tx.sendto(buf, addr)
+            out[i] = clock() - t0
+            time.sleep(1.0 / rate_hz)
+    finally:
+        tx.sendto(b"q", addr)
+        os.waitpid(pid, 0)
+        tx.close()
+        rx.close()
+    return out
 
 
 def main() -> int:
@@ -91,6 +122,17 @@ def main() -> int:
                 f"{label:<30} {len(v):>7} {np.median(us):>8.1f} {np.percentile(us, 90):>8.1f} "
                 f"{np.percentile(us, 99):>8.1f}"
             )
+    if a.rt_priority > 0:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(a.rt_priority))
+    try:
+        us = sendto_alone(a.rate) * 1e6
+    finally:
+        if a.rt_priority > 0:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    print(
+        f"baseline, same run: sendto alone to a blocked receiver {len(us)} x p50/p99 {np.median(us):.1f}/"
+        f"{np.percentile(us, 99):.1f} us"
+    )
     return 0
 
 
