@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import argparse
 import math
+from typing import Any
 
+from estimators.errors import UserError
 from offboard.control.options import Switching, values
 
 
@@ -71,6 +73,30 @@ def add_controller_arguments(p: argparse.ArgumentParser) -> None:
         help="vehicle description: a TOML file, or a shipped one (paper-table1, px4-sih, ardupilot-sitl-quad); "
         "default: the paper's Table 1",
     )
+
+
+def add_feedforward_argument(p: argparse.ArgumentParser) -> None:
+    """``--external-feedforward`` of the commands that build the measured-input filter (``sim``, ``fly``, ``demo``)."""
+    p.add_argument(
+        "--external-feedforward",
+        action="store_true",
+        help="with the kf filter: the external acceleration on the vehicle it estimates (a gust, a push; beyond 3 "
+        "of its standard deviations) is fed forward into the law's F^(4), as the smc row of slung compare / sweep "
+        "flies (default: off, the chain of the pendulum model alone)",
+    )
+
+
+def feedforward_tuning(args: argparse.Namespace, estimator: str = "kf") -> Any:
+    """The measured-input filter's tuning for ``--external-feedforward`` (None: the defaults, or the option not
+    given); the option with another estimator than ``kf`` is a :class:`UserError` (only that filter estimates the
+    external acceleration)."""
+    if not getattr(args, "external_feedforward", False):
+        return None
+    if estimator != "kf":
+        raise UserError(f"--external-feedforward needs the kf filter (--estimator kf), not {estimator!r}")
+    from estimators.filters.measured_model import MeasuredTuning
+
+    return MeasuredTuning(external_feedforward=True)
 
 
 def add_no_figures_argument(p: argparse.ArgumentParser) -> None:

@@ -48,6 +48,7 @@ def demo_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         ("ardupilot", "attitude", "lockstep"),
         ("px4", "attitude", "realtime"),
         ("px4", "attitude", "sih"),  # PX4 SITL's SIH vehicle, no load: --law auto flies the attitude-level law
+        ("px4", "attitude", "feedforward"),  # the filter's external acceleration fed forward (the smc row's)
     ):
         name = f"{flavor}-{output}-{mode}"
         d = tmp_path_factory.mktemp(f"demo-{name}")
@@ -72,6 +73,7 @@ def demo_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
             ]  # exact telemetry (the demo's default is px4-typical)
             + (["--realtime"] if mode == "realtime" else [])
             + (["--vehicle", "px4-sih", "--scenario", "hover"] if mode == "sih" else [])
+            + (["--external-feedforward"] if mode == "feedforward" else [])
         )
         assert (d / "flight.tlog").is_file() and (d / "timeseries_live.csv").is_file()
         out[name] = d
@@ -80,7 +82,13 @@ def demo_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 @pytest.mark.parametrize(
     "run_name",
-    ["px4-attitude-lockstep", "px4-actuator-lockstep", "ardupilot-attitude-lockstep", "px4-attitude-realtime"],
+    [
+        "px4-attitude-lockstep",
+        "px4-actuator-lockstep",
+        "ardupilot-attitude-lockstep",
+        "px4-attitude-realtime",
+        "px4-attitude-feedforward",
+    ],
 )
 def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
     demo_runs: dict[str, Path], run_name: str, tmp_path: Path
@@ -128,6 +136,9 @@ def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
     # what went over the wire (float32) is what the replay recomputes, rounded to float32
     assert m["setpoint_agreement"]["float32_identical"] == m["setpoint_agreement"]["ticks_compared"] == n
     assert m["log"]["has_offboard_segment"] and m["log"]["autopilot"] == flavor
+    # the filter was rebuilt with the live run's tuning: --external-feedforward, recorded in metrics.json
+    live_ff = json.loads((run / "metrics.json").read_text())["config"]["external_feedforward"]
+    assert live_ff is (run_name.endswith("feedforward")) and m["config"]["external_feedforward"] is live_ff
 
 
 def test_replay_reproduces_an_attitude_level_law_flight(demo_runs: dict[str, Path], tmp_path: Path) -> None:

@@ -256,6 +256,7 @@ def write_flight_outputs(
                 "load_sensor": bool(estimator_config["load_sensor"]),
                 "estimator_load_sensor": bool(estimator_config["load_sensor"]),
                 "delay_s": float(estimator_config["delay_s"]),
+                "external_feedforward": bool(estimator_config.get("external_feedforward", False)),
             }
         )
     m["loop"] = {

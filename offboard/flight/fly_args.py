@@ -8,7 +8,13 @@ from pathlib import Path
 from typing import Any
 
 from estimators.errors import UserError
-from offboard.cli_args import add_controller_arguments, add_no_figures_argument, non_negative_float, positive_float
+from offboard.cli_args import (
+    add_controller_arguments,
+    add_feedforward_argument,
+    add_no_figures_argument,
+    non_negative_float,
+    positive_float,
+)
 from offboard.control.options import EndAction, Law, Output, values
 from offboard.flight.latency import DEFAULT_LIMIT_S as DEFAULT_LATENCY_LIMIT_S
 from offboard.flight.link.setpoints import MASKS
@@ -72,6 +78,7 @@ def add_reference_arguments(p: argparse.ArgumentParser) -> None:
 def add_flight_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
     """Options shared by ``fly`` and ``demo``."""
     add_controller_arguments(p)
+    add_feedforward_argument(p)
     p.set_defaults(switching=None)  # resolved per law in fly(): smooth for the attitude law, sign for the torque law
     p.add_argument(
         "--law",

@@ -26,6 +26,7 @@ from typing import Any
 
 from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle, load_vehicle
+from offboard.cli_args import feedforward_tuning
 from offboard.control import smc, smc_attitude
 from offboard.flight.attitude_mapping import AttitudeLawMapper
 from offboard.flight.command_mapping import CommandMapper, MappingConfig
@@ -237,7 +238,10 @@ def fly(
             args.mask = default_mask(info.flavour)
             mapper.set_mask(args.mask)
         load_sensor = True  # the filter always has the load-angle channel; without LOADANG it predicts the swing
-        est = make_estimator("kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate, delay_s=ESTIMATOR_DELAY_S)
+        tuning = feedforward_tuning(args)  # --external-feedforward (None: the filter's defaults)
+        est = make_estimator(
+            "kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate, delay_s=ESTIMATOR_DELAY_S, tuning=tuning
+        )
         loop = FlightLoop(
             conn,
             vehicle,
@@ -250,7 +254,7 @@ def fly(
             truth_probe,
             manager=manager,
             estimator_factory=lambda delay_s=ESTIMATOR_DELAY_S: make_estimator(
-                "kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate, delay_s=delay_s
+                "kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate, delay_s=delay_s, tuning=tuning
             ),
             on_reference_start=on_reference_start,
             controller=controller,
@@ -318,7 +322,11 @@ def fly(
         link,
         loop_t0=loop.events,
         figures=not args.no_figures,
-        estimator_config={"load_sensor": load_sensor, "delay_s": result.filter_delay_s or ESTIMATOR_DELAY_S},
+        estimator_config={
+            "load_sensor": load_sensor,
+            "delay_s": result.filter_delay_s or ESTIMATOR_DELAY_S,
+            "external_feedforward": tuning is not None,
+        },
         feasibility=feasibility,
         on_log=on_log,
     )

@@ -17,8 +17,10 @@ from estimators.errors import UserError
 from estimators.model.vehicle import load_vehicle
 from offboard.cli_args import (
     add_controller_arguments,
+    add_feedforward_argument,
     add_no_figures_argument,
     add_seed_argument,
+    feedforward_tuning,
     positive_float,
 )
 from offboard.control import smc
@@ -55,6 +57,7 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="truth: the controller sees the true state; kf: the Kalman filter on the sensor data (fed by the "
         "measured attitude and accelerometer); kf-torque: the earlier filter that predicts from the commanded torques",
     )
+    add_feedforward_argument(p)
     p.add_argument(
         "--no-load-sensor",
         action="store_true",
@@ -105,6 +108,7 @@ def run_cli(args: argparse.Namespace) -> dict[str, Any]:
         )
     if args.estimator in ("kf", "kf-torque") and args.sensors is None:
         args.sensors = "px4-typical"
+    tuning = feedforward_tuning(args, args.estimator)
     config = sim_mod.SimConfig(
         plant_dt=plant_dt,
         control_rate=args.control_rate,
@@ -118,8 +122,9 @@ def run_cli(args: argparse.Namespace) -> dict[str, Any]:
     params = smc.ControllerParams.for_vehicle(vehicle, switching=args.switching, epsilon=args.epsilon)
     _print_feasibility(scenario, vehicle, params)
     progress = _progress_printer() if sys.stderr.isatty() else None
-    log = sim_mod.run(scenario, vehicle, params, config, progress=progress)
+    log = sim_mod.run(scenario, vehicle, params, config, progress=progress, tuning=tuning)
     m = metrics_mod.compute(log)
+    m["config"]["external_feedforward"] = tuning is not None
     m["config"]["switching"] = args.switching
     m["config"]["epsilon"] = args.epsilon if args.switching == "smooth" else None
     report.write_report(log, m, out_dir, figures=not args.no_figures, command="sim")

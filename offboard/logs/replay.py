@@ -92,6 +92,16 @@ def scan(messages: Iterable[tuple[float, Any]]) -> Scan:
 # pass 2: replay
 
 
+def live_tuning(config: ReplayConfig) -> Any:
+    """The tuning the live run's filter was built with (None: the defaults): ``--external-feedforward`` is the one
+    setting of it a flight chooses."""
+    if not config.external_feedforward or config.estimator != "kf":
+        return None
+    from estimators.filters.measured_model import MeasuredTuning
+
+    return MeasuredTuning(external_feedforward=True)
+
+
 def _find_start(
     events: list[Event],
     meas_pos: list[int],
@@ -126,7 +136,12 @@ def _find_start(
         seen.add(cand)
         trial = [tk._replace(n_push=tk.n_push + start - cand) for tk in ticks[:n_check]]
         est = make_estimator(
-            config.estimator, config.vehicle, load_sensor=load_sensor, rate_hz=config.rate_hz, delay_s=config.delay_s
+            config.estimator,
+            config.vehicle,
+            load_sensor=load_sensor,
+            rate_hz=config.rate_hz,
+            delay_s=config.delay_s,
+            tuning=live_tuning(config),
         )
         _, extra = replay_ticks(events, meas_pos, meas, cand, trial, est, config, output, load_sensor, None, memo)
         if extra.get("cmp_exact") and all(extra["cmp_exact"]):
@@ -201,7 +216,12 @@ def _replay(
     cols = columns_for(output)
     if ticks:  # the live loop's own filter, as it was built (bit-identical replay)
         estimator = make_estimator(
-            config.estimator, vehicle, load_sensor=load_sensor, rate_hz=rate, delay_s=config.delay_s
+            config.estimator,
+            vehicle,
+            load_sensor=load_sensor,
+            rate_hz=rate,
+            delay_s=config.delay_s,
+            tuning=live_tuning(config),
         )
         data, extra = replay_ticks(
             events, meas_pos, meas, start, ticks, estimator, config, output, load_sensor, progress, memo

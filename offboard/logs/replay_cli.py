@@ -167,6 +167,9 @@ def build_config(args: argparse.Namespace, meta: dict[str, Any], live: Any = Non
     # the live run's roll / pitch limit (runs recorded before it existed clipped each axis alone)
     if cfg.get("shared_roll_pitch") is True:
         extra["shared_roll_pitch"] = True
+    # the live run's filter fed the external acceleration forward (--external-feedforward)
+    if cfg.get("external_feedforward") is True:
+        extra["external_feedforward"] = True
     return ReplayConfig(
         vehicle=vehicle,
         t_from=args.t_from,

@@ -259,6 +259,7 @@ def replay_metrics(
             "law": config.law,
             "epsilon": config.epsilon,
             "delay_s": config.delay_s,
+            "external_feedforward": config.external_feedforward,
             "reference": None if ref is None else {"scenario": ref.scenario, "origin": extra.get("origin")},
         },
     }

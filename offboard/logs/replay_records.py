@@ -116,9 +116,11 @@ class ReplayConfig:
     (``offboard.control.smc_attitude``), the live run's; gain_scale: the torque-level law's pole scale the live run
     chose for its measured loop delay (``offboard.control.delay_margin``; 1: the paper's gains); shared_roll_pitch:
     the live run's torque-level law limited its roll / pitch pair to an X frame's shared motor margin
-    (``offboard.control.smc.ControllerParams``); output / mask: None
-    = from the logged setpoints; mapping: extra ``MappingConfig`` fields (limits); autopilot: ``AutopilotModel`` fields
-    (flavour, attitude_p, rate_bandwidth, hover_thrust_norm, angle_boost; flavour defaults to the HEARTBEAT's);
+    (``offboard.control.smc.ControllerParams``); external_feedforward: the live run's filter fed its estimate of the
+    external acceleration forward (``--external-feedforward``, ``MeasuredTuning.external_feedforward``);
+    output / mask: None = from the logged setpoints; mapping: extra ``MappingConfig`` fields (limits); autopilot:
+    ``AutopilotModel`` fields (flavour, attitude_p, rate_bandwidth, hover_thrust_norm, angle_boost; flavour
+    defaults to the HEARTBEAT's);
     live: the live run's tick log, for an exact replay; estimate_only: run the estimator on the grid over the whole
     log even where it holds an offboard flight (no controller).
     """
@@ -136,6 +138,7 @@ class ReplayConfig:
     law: str = "torque"
     gain_scale: float = 1.0
     shared_roll_pitch: bool = False
+    external_feedforward: bool = False
     output: str | None = None
     mask: str | None = None
     mapping: dict[str, Any] | None = None
