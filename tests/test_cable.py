@@ -1,5 +1,5 @@
 """estimators/model/cable.py: spherical <-> r <-> planar round trips, rates against finite differences, and the
-rest position alpha = 0 (where beta is undefined) handled without NaN."""
+rest position alpha = 0 (where beta is undefined) handled without NaN, and the swing amplitude."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from estimators.model.cable import cable_from_planar, cable_from_spherical, planar_swing, swing_angles
+from estimators.model.cable import cable_from_planar, cable_from_spherical, planar_swing, swing_amplitude, swing_angles
 
 
 def _tangent_ok(r: tuple[float, ...], rd: tuple[float, ...]) -> None:
@@ -116,3 +116,17 @@ def test_rest_position_has_no_nan() -> None:
     # load straight above (alpha = pi) is also finite; the planar angles are +-pi there
     s = swing_angles(0.0, 0.0, 1.0, 0.1, 0.0, 0.0)
     assert all(math.isfinite(v) for v in s) and s.alpha == pytest.approx(math.pi)
+
+
+def test_swing_amplitude_is_constant_along_an_undamped_pendulum() -> None:
+    """``swing_amplitude`` of a small-angle pendulum swinging elliptically in both planes, ``a_x = A cos(w t)``,
+    ``a_y = B sin(w t)``, is ``sqrt(A^2 + B^2)`` at every phase (it is the loop's settle criterion: a swing that
+    only changes phase must not look settled); at rest it is 0."""
+    w2 = 9.81 / 0.7
+    w = math.sqrt(w2)
+    amp_x, amp_y = 0.12, 0.05
+    for t in np.linspace(0.0, 3.0, 37):
+        a_x, a_y = amp_x * math.cos(w * t), amp_y * math.sin(w * t)
+        r_x, r_y = -amp_x * w * math.sin(w * t), amp_y * w * math.cos(w * t)
+        assert swing_amplitude(a_x, a_y, r_x, r_y, w2) == pytest.approx(math.hypot(amp_x, amp_y), rel=1e-12)
+    assert swing_amplitude(0.0, 0.0, 0.0, 0.0, w2) == 0.0

@@ -113,7 +113,7 @@ def _last_swing_amplitude(folder: Path) -> tuple[float, float]:
     rows = list(csv.DictReader((folder / "timeseries_live.csv").open(encoding="utf-8")))
     r = {k: float(v) for k, v in rows[-1].items() if k in ("t_ref",) or k.startswith("est_alpha")}
     v = Vehicle()
-    w2 = v.gravity / v.cable_length  # as the loop (offboard.flight.loop.FlightLoop.swing_amplitude)
+    w2 = v.gravity / v.cable_length  # written out here, an oracle independent of estimators.model.cable.swing_amplitude
     amp = math.sqrt(
         r["est_alpha_x"] ** 2 + r["est_alpha_y"] ** 2 + (r["est_alpha_x_rate"] ** 2 + r["est_alpha_y_rate"] ** 2) / w2
     )

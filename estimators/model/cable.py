@@ -98,3 +98,12 @@ def cable_from_planar(
     dn = (ty * dty + tx * dtx) / n
     rd = ((dty * n - ty * dn) / (n * n), (dtx * n - tx * dn) / (n * n), dn / (n * n))
     return r, rd
+
+
+def swing_amplitude(alpha_x: float, alpha_y: float, alpha_x_rate: float, alpha_y_rate: float, w2: float) -> float:
+    """The swing amplitude (rad) of planar angles and rates (rad, rad/s): the angle an undamped small-angle pendulum
+    of squared frequency ``w2`` (``g / l``, 1/s^2) would reach from this angle and rate, both axes together,
+    ``sqrt(a_x^2 + a_y^2 + (a_x'^2 + a_y'^2) / w2)``; constant along such a pendulum's swing. The live loop's settle
+    criterion after a reference's end (``offboard.flight.loop``) and its report (``offboard.flight.flight_outputs``)."""
+    a2 = alpha_x * alpha_x + alpha_y * alpha_y
+    return math.sqrt(a2 + (alpha_x_rate * alpha_x_rate + alpha_y_rate * alpha_y_rate) / w2)

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from estimators.model.cable import cable_from_planar, planar_swing
+from estimators.model.cable import cable_from_planar, planar_swing, swing_amplitude
 from estimators.model.flatness import flat_chain, flat_constants, world_tilt
 from estimators.model.vehicle import Vehicle
 from offboard.flight.loop import (
@@ -37,8 +37,8 @@ def settle_summary(rows: np.ndarray, result: FlightResult, vehicle: Vehicle) -> 
     L = LIVE_COL
 
     def amplitude(r: np.ndarray) -> float:
-        a = r[L["est_alpha_x"]] ** 2 + r[L["est_alpha_y"]] ** 2
-        return float(np.sqrt(a + (r[L["est_alpha_x_rate"]] ** 2 + r[L["est_alpha_y_rate"]] ** 2) / w2))
+        ax, ay = float(r[L["est_alpha_x"]]), float(r[L["est_alpha_y"]])
+        return swing_amplitude(ax, ay, float(r[L["est_alpha_x_rate"]]), float(r[L["est_alpha_y_rate"]]), w2)
 
     t_ref = rows[:, L["t_ref"]] if len(rows) else np.zeros(0)
     end = result.reference_duration_s

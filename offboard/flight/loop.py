@@ -66,6 +66,7 @@ from typing import Any
 import numpy as np
 
 from estimators.filters.factory import Estimator
+from estimators.model.cable import swing_amplitude
 from estimators.model.control_state import ControlState
 from estimators.model.flatness import flat_chain, flat_constants, world_tilt
 from estimators.model.frames import model_euler_to_ned, model_to_ned_vector
@@ -1003,8 +1004,7 @@ class FlightLoop:
     def swing_amplitude(self, est: ControlState) -> float:
         """The load's swing amplitude in ``est`` (rad): the angle an undamped pendulum with this angle and rate
         would reach, both axes together (``sqrt(a^2 + (a' / w)^2)``, ``w`` the pendulum frequency)."""
-        w2 = self.k.g / self.k.l
-        return math.sqrt(est.alpha_x**2 + est.alpha_y**2 + (est.alpha_x_rate**2 + est.alpha_y_rate**2) / w2)
+        return swing_amplitude(est.alpha_x, est.alpha_y, est.alpha_x_rate, est.alpha_y_rate, self.k.g / self.k.l)
 
     def _settled(self, est: ControlState | None, past_end_s: float) -> bool:
         """After the reference's end (``past_end_s`` s ago): whether the flight may end now, i.e. the load's swing
