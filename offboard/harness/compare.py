@@ -279,6 +279,8 @@ def format_table(results: list[CaseResult]) -> str:
             row += f"{r.figures['peak_over_bound']:>12.2f}"
         if not r.figures["completed"]:
             row += f"  ({r.figures.get('ended_by', 'diverged')})"  # a flight: how it ended
+        if r.figures.get("not_designed_for_vehicle"):
+            row += "  (not designed for this vehicle)"
         lines.append(row)
     return "\n".join(lines)
 

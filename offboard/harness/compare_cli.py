@@ -54,14 +54,27 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
 
 
+def designs_missing(names: list[str], vehicle: Any) -> dict[str, str]:
+    """The controllers of ``names`` that have no design for ``vehicle``, with why (``registry.not_designed_for``),
+    each said on stderr: they are flown all the same (the comparison shows what they do), and their rows say it."""
+    missing = {}
+    for name in names:
+        reason = registry.not_designed_for(name, vehicle)
+        if reason is not None:
+            missing[name] = reason
+            print(f"compare: warning: {name}: {reason}", file=sys.stderr)
+    return missing
+
+
 def run(args: argparse.Namespace) -> int:
-    names = registry.parse_list(args.controllers)
     the_cases = compare.cases(args.scenario)
     vehicle = load_vehicle(args.vehicle)
     if args.mavlink:
         compare_mavlink.check_scenario(args.scenario)
         if args.estimator != "kf" or args.no_load_sensor:
             raise UserError("--mavlink flies with the Kalman filter on the emulator's telemetry, cable angle included")
+    names = registry.parse_list(args.controllers)
+    no_design = designs_missing(names, vehicle)
     out = prepare_output_dir(args.out)
     config = SimConfig(
         estimator=args.estimator,
@@ -93,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
                 results.append(compare_mavlink.run_case(case, name, vehicle, flight, switching=args.switching))
             else:
                 results.append(compare.run_case(case, name, vehicle, config, switching=args.switching))
+            if name in no_design:
+                results[-1].figures["not_designed_for_vehicle"] = no_design[name]
             done += 1
         by_case[case.label] = results
     if in_place:
@@ -115,6 +130,8 @@ def run(args: argparse.Namespace) -> int:
                 "flavor": args.flavor if args.mavlink else None,
             },
             "cases": {label: {r.controller: r.figures for r in rs} for label, rs in by_case.items()},
+            # controllers flown on a vehicle they have no design for, and why (registry.not_designed_for)
+            "not_designed_for_vehicle": no_design,
         },
     )
     rows = [r for rs in by_case.values() for r in compare.series_rows(rs)]

@@ -122,6 +122,24 @@ def make(name: str, vehicle: Vehicle, switching: str = "sign", epsilon: float = 
     return factory(vehicle, switching=switching, epsilon=epsilon)
 
 
+def not_designed_for(controller: str, vehicle: Vehicle) -> str | None:
+    """Why ``controller`` is not designed for ``vehicle`` (None: it is). The attitude-level law
+    (``smc-attitude``) has gains only where they stay stable behind PX4's default attitude loop
+    (``smc_attitude.robust_gains_exist``): not for a load that swings faster than that loop follows, the paper's
+    vehicle among them, where ``slung fly --law auto`` flies the torque-level law instead; flown anyway there it
+    diverged in the in-process comparison with the filter (docs/compare.md)."""
+    if controller != "smc-attitude":
+        return None
+    from offboard.control import smc_attitude
+
+    if smc_attitude.robust_gains_exist(vehicle, smc_attitude.InnerLoop()):
+        return None
+    return (
+        f"no attitude-level gains stay stable for {vehicle.name} behind PX4's default attitude loop (its load swings "
+        "faster than that loop follows); slung fly --law auto flies the torque-level law (smc) there"
+    )
+
+
 def parse_list(text: str | None) -> list[str]:
     """``"smc,cascade"`` -> ``["smc", "cascade"]`` (None or empty: every controller); UserError for an unknown
     name or a repeated one."""
