@@ -1,11 +1,12 @@
 """``slung fly``: fly a real or emulated vehicle over MAVLink with the Kalman filter and the sliding-mode controller.
 
-Usage::
+Usage (the main options; ``slung fly --help`` and ``docs/usage-fly-demo.md`` list every one)::
 
-    slung fly --connect URL (--scenario NAME | --trajectory FILE) [--output attitude|actuator]
-              [--mask attitude|attitude+rates|rates] [--rate HZ] [--vehicle FILE] [--backend pymavlink|mavsdk]
-              [--lockstep] [--stale-limit S] [--swing-limit RAD] [--end hold|land] [--on-signal hold|land]
-              --out DIR
+    slung fly --connect URL (--scenario NAME | --trajectory FILE) [--duration S] [--output attitude|actuator]
+              [--mask attitude|attitude+rates|rates] [--rate HZ] [--vehicle FILE|NAME] [--law auto|attitude|torque]
+              [--backend pymavlink|mavsdk] [--lockstep] [--no-takeoff] [--external-feedforward]
+              [--stale-limit S] [--swing-limit RAD] [--settle S] [--settle-swing RAD]
+              [--end hold|land] [--on-signal hold|land] [--rt-priority N] [--force] --out DIR
 
 Writes into DIR: ``flight.tlog`` (every packet in and out, QGC format, flushed as written),
 ``timeseries_live.csv`` (one row per tick, every estimator / controller / setpoint field at full precision, the
