@@ -152,9 +152,24 @@ def test_supervisor_rules_without_a_link() -> None:
     s.observe(_hb(PX4_POSCTL), 0.0)
     s.expect(PX4_OFFBOARD, 10.0)
     # a heartbeat older than the switch may still show the previous mode: tolerated until confirm_s
+    s.observe(_hb(PX4_POSCTL), 10.4)
     assert s.check(11.0) is None
+    s.observe(_hb(PX4_POSCTL), 11.4)
+    assert s.check(12.9) is None  # two heartbeats without the mode, but not yet confirm_s
     v = s.check(13.5)
     assert v is not None and v.kind == "mode_not_entered" and v.action == "hold"
+    assert "2 heartbeats since the request" in v.reason and "POSCTL" in v.reason
+    # heartbeats lost (a lossy link): one heartbeat without the mode is no evidence, so the loop waits up to
+    # confirm_max_s for one that shows it ...
+    s.expect(PX4_OFFBOARD, 30.0)
+    s.observe(_hb(PX4_POSCTL), 30.3)
+    assert s.check(35.0) is None and s.check(38.9) is None
+    s.observe(_hb(PX4_OFFBOARD), 38.95)
+    assert s.check(39.5) is None and s._confirmed
+    # ... and ends it after confirm_max_s if none does
+    s.expect(PX4_OFFBOARD, 40.0)
+    v = s.check(49.1)
+    assert v is not None and v.kind == "mode_not_entered" and "0 heartbeats since the request" in v.reason
     s.expect(PX4_OFFBOARD, 20.0)
     s.observe(_hb(PX4_OFFBOARD), 20.5)
     assert s.check(21.0) is None and s.check(100.0) is None  # confirmed: no time-out any more
