@@ -238,3 +238,33 @@ def test_sih_linear_drag_slows_the_vehicle_as_sihs_does() -> None:
         assert emu.drag == 0.0 and emu.truth().velocity_m_s[0] == 2.0
     finally:
         link.close()
+
+
+def test_the_in_process_attitude_path_tracks_a_tilt_step_as_px4s_attitude_loop() -> None:
+    """``Px4AttitudePath`` (what ``slung compare`` flies the attitude-level law through in process): a 0.1 rad roll
+    setpoint on SIH's vehicle at hover thrust is reached as a first-order attitude P loop with MC_ROLL_P = 4 and a
+    fast rate loop reaches it (63 % within 0.15-0.5 s, 1 / MC_ROLL_P being 0.25 s; within 3 % after 1.5 s), with no
+    pitch or yaw, and the motors' collective thrust settles on the setpoint's; a non-finite thrust is no thrust."""
+    from sim_bridge.inner.px4_attitude_path import Px4AttitudePath
+    from sim_bridge.plant import dynamics
+
+    v, dt = SIH, 0.001
+    p = dynamics.plant_params(v)
+    path = Px4AttitudePath(v, dt)
+    hover = v.total_mass * v.gravity
+    path.reset(hover / 4.0)
+    thrust = hover / math.cos(0.1)
+    path.set_setpoint(0.1, 0.0, 0.0, thrust)
+    x = dynamics.make_state((0.0, 0.0, 10.0))
+    t63 = None
+    for k in range(1500):
+        w = path.step(x)
+        x = dynamics.rk4_step(x, [*w, *(0.0,) * 9], p, dt, k * dt)
+        if t63 is None and x[6] >= 0.063:
+            t63 = (k + 1) * dt
+    assert t63 is not None and 0.15 <= t63 <= 0.5, t63
+    assert x[6] == pytest.approx(0.1, abs=0.003)
+    assert abs(x[7]) < 0.003 and abs(x[8]) < 0.003
+    assert path.wrench()[0] == pytest.approx(thrust, rel=0.01)
+    path.set_setpoint(0.0, 0.0, 0.0, math.nan)
+    assert path.thrust_sp == 0.0

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -238,7 +238,13 @@ def run_case(
     params = smc.ControllerParams.for_vehicle(vehicle, switching=switching, epsilon=epsilon)
     law = registry.make(controller, vehicle, switching=switching, epsilon=epsilon)
     tuning = registry.filter_tuning(controller, config.estimator)
-    log = sim.run(case.scenario, vehicle, params, config, controller=law, tuning=tuning)
+    if controller == "smc-attitude" and config.actuators == "ideal":
+        # the attitude-level law commands an attitude and a thrust: flown through PX4's attitude P, rate PID,
+        # allocator and motors (sim_bridge.inner.px4_attitude_path), as slung fly flies it through an autopilot
+        config = replace(config, actuators="px4-attitude")
+    # with motors in the loop the filter is given the command through their lag, as the live loop gives it
+    lag = config.actuators == "px4-attitude"
+    log = sim.run(case.scenario, vehicle, params, config, controller=law, tuning=tuning, command_lag=lag)
     return CaseResult(controller, case, case_figures(case, log), log)
 
 

@@ -107,8 +107,8 @@ def run(
     control_dt = substeps * config.plant_dt
     n_ticks = math.floor(scenario.duration / control_dt + 1e-9) + 1
 
-    if config.actuators not in ("ideal", "mixer", "px4"):
-        raise ValueError(f"unknown actuators {config.actuators!r} (ideal, mixer or px4)")
+    if config.actuators not in ("ideal", "mixer", "px4", "px4-attitude"):
+        raise ValueError(f"unknown actuators {config.actuators!r} (ideal, mixer, px4 or px4-attitude)")
     p = dynamics.plant_params(vehicle, config.attitude_model)
     k_nominal = flat_constants(params.vehicle)
     k_true = flat_constants(vehicle)
@@ -166,6 +166,14 @@ def run(
 
         mixer = Px4ActuatorPath(vehicle, config.plant_dt)
         mixer.reset(0.25 * u[0])
+    att_path = None
+    if config.actuators == "px4-attitude":  # the attitude setpoint through PX4's attitude P, rate PID, allocator
+        from offboard.flight.command_mapping import MappingConfig
+        from sim_bridge.inner.px4_attitude_path import Px4AttitudePath
+
+        att_path = Px4AttitudePath(vehicle, config.plant_dt)
+        att_path.reset(0.25 * u[0])
+        max_tilt = MappingConfig().max_tilt
     last_progress = 0
     for tick in range(n_ticks):
         t = tick * control_dt
@@ -182,6 +190,11 @@ def run(
         if mixer is not None:  # the plant feels the motors' wrench, not the command
             mixer.allocate(cmd.thrust, cmd.tau_phi, cmd.tau_theta, cmd.tau_psi)
             u[0:4] = mixer.wrench()
+        elif att_path is not None:  # the law's attitude setpoint, its tilt clipped as slung fly's mapping clips it
+            phi_sp = min(max(getattr(cmd, "phi_sp", 0.0), -max_tilt), max_tilt)
+            theta_sp = min(max(getattr(cmd, "theta_sp", 0.0), -max_tilt), max_tilt)
+            att_path.set_setpoint(phi_sp, theta_sp, getattr(cmd, "psi_sp", x[8]), cmd.thrust)
+            u[0:4] = att_path.wrench()
         tens = tension(x, u, p)
         data[tick, COL["tension"]] = tens
         if tick == n_ticks - 1:
@@ -189,6 +202,8 @@ def run(
         for i in range(substeps):
             if mixer is not None:  # the motors' thrusts at the end of this plant step act over it (zero-order)
                 u[0:4] = mixer.step()
+            elif att_path is not None:
+                u[0:4] = att_path.step(x)
             x = rk4(x, u, p, config.plant_dt, t + i * config.plant_dt)
             tens = tension(x, u, p)
             if tens <= 0.0 and p.m > 0.0:  # no load (m = 0): no cable to go slack, the tension is 0 by definition

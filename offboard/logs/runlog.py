@@ -89,7 +89,9 @@ class SimConfig:
     (they go through the emulator's X mixer: four motors limited to [0, motor_thrust_max] with roll / pitch
     priority and first-order lag) or ``"px4"`` (PX4's control allocator with its sequential desaturation, airmode
     off, and SIH-like motors: what a torque command sent with ``--output actuator`` meets on PX4 and on the
-    emulator's PX4 flavour, ``sim_bridge.inner.px4_inner.Px4ActuatorPath``).
+    emulator's PX4 flavour, ``sim_bridge.inner.px4_inner.Px4ActuatorPath``) or ``"px4-attitude"`` (the
+    attitude-level law's attitude and thrust setpoint through PX4's attitude P, rate PID, allocator and motors,
+    ``sim_bridge.inner.px4_attitude_path.Px4AttitudePath``: how ``slung compare`` flies ``smc-attitude``).
     """
 
     plant_dt: float = 0.001
