@@ -94,9 +94,9 @@ def feedforward_tuning(args: argparse.Namespace, estimator: str = "kf") -> Any:
         return None
     if estimator != "kf":
         raise UserError(f"--external-feedforward needs the kf filter (--estimator kf), not {estimator!r}")
-    from estimators.filters.measured_model import MeasuredTuning
+    from estimators.filters.measured_model import FEEDFORWARD_TUNING
 
-    return MeasuredTuning(external_feedforward=True)
+    return FEEDFORWARD_TUNING
 
 
 def add_no_figures_argument(p: argparse.ArgumentParser) -> None:

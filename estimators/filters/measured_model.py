@@ -67,6 +67,11 @@ class MeasuredTuning(MeasurementNoise):
     accel_gain_filter: float = 0.1  # weight of a new sample in the low-pass of the vertical specific force
 
 
+#: the tuning with the external acceleration fed forward (``MeasuredTuning.external_feedforward``): the ``smc`` row
+#: of compare / sweep (``registry.filter_tuning``) and ``--external-feedforward`` (sim, fly, demo; replay rebuilds it)
+FEEDFORWARD_TUNING = MeasuredTuning(external_feedforward=True)
+
+
 def thrust_window(tuning: MeasuredTuning, rate_hz: float) -> int:
     """How many pushed commands (one per control tick at ``rate_hz``, Hz) span ``tuning.imu_timeout_s``: the window
     of thrusts whose range widens the acceleration input's gate (at least 1)."""
@@ -134,4 +139,4 @@ class Channel:
         self.ehph += rate * (hph - self.ehph)
 
 
-__all__ = ["KIN", "RATE", "SWING", "Block", "Channel", "Gyro", "MeasuredTuning", "thrust_window"]
+__all__ = ["FEEDFORWARD_TUNING", "KIN", "RATE", "SWING", "Block", "Channel", "Gyro", "MeasuredTuning", "thrust_window"]

@@ -15,14 +15,16 @@ from typing import Any
 from estimators.filters.measured_model import KIN, RATE, SWING, Block, MeasuredTuning
 from estimators.filters.small_kf import (
     Matrix,
+    kinematic_first_row,
     kinematic_model,
+    pendulum_first_row,
     pendulum_model,
-    pendulum_noise,
     pendulum_terms,
     predict,
     predict_kinematic,
     predict_pendulum,
     predict_rate,
+    rate_first_row,
     rate_model,
 )
 from estimators.model.control_state import ControlState
@@ -54,13 +56,21 @@ class MeasuredPrediction:
     def _imu_fresh(self, t: float) -> bool:
         return t - self._t_imu <= self.tuning.imu_timeout_s
 
+    def _kin_inputs(self, b: Block) -> tuple[float, float]:
+        """Kinematic block ``b``'s white-acceleration density ``q_v`` ((m/s^2)^2/Hz) and acceleration input ``u``
+        (m/s^2) in force: the measured acceleration while the IMU is fresh, else none and the larger density."""
+        tn = self.tuning
+        if self._imu_fresh(b.t):
+            return (tn.q_v if b.axis < 2 else tn.q_vz), self._u[b.axis]
+        return tn.q_v_no_imu, 0.0
+
     def _swing_input(self, b: Block) -> tuple[float, float]:
         """Swing block ``b``'s input ``f`` (rad/s^2) and squared frequency ``w2`` (1/s^2) with the measured acceleration
         in force: ``a'' = -w2 a + f``, ``w2 = (g + u_z) / l``, ``f = -(u - bias) / l`` (none without a fresh IMU)."""
         if self._imu_fresh(b.t):
             w2 = max(self._g + self._u[2], 0.2 * self._g) / self._l
             return -(self._u[b.axis] - self._kin[b.axis].x[2]) / self._l, w2
-        return 0.0, max(self._g, 0.2 * self._g) / self._l
+        return 0.0, self._g / self._l
 
     def _model(self, b: Block, h: float) -> tuple[Matrix, list[float] | None, float, Matrix]:
         """(Phi, Gamma, input, Q) of block ``b`` for a step ``h`` from its time, with the inputs in force (the
@@ -68,11 +78,9 @@ class MeasuredPrediction:
         tn = self.tuning
         role = b.role
         if role == KIN:
-            i = b.axis
-            fresh = self._imu_fresh(b.t)
-            q_v = (tn.q_v if i < 2 else tn.q_vz) if fresh else tn.q_v_no_imu
-            phi, gam, q = kinematic_model(h, q_v, tn.q_b, self._q_p[i])
-            return phi, gam, (self._u[i] if fresh else 0.0), q
+            q_v, u = self._kin_inputs(b)
+            phi, gam, q = kinematic_model(h, q_v, tn.q_b, self._q_p[b.axis])
+            return phi, gam, u, q
         if role == SWING:
             f, w2 = self._swing_input(b)
             phi, gam, q = pendulum_model(h, w2, tn.q_a, tn.q_e)
@@ -93,11 +101,8 @@ class MeasuredPrediction:
         tn = self.tuning
         role = b.role
         if role == KIN:
-            i = b.axis
-            if self._imu_fresh(b.t):
-                predict_kinematic(b.x, b.p, h, tn.q_v if i < 2 else tn.q_vz, tn.q_b, self._q_p[i], self._u[i])
-            else:
-                predict_kinematic(b.x, b.p, h, tn.q_v_no_imu, tn.q_b, self._q_p[i], 0.0)
+            q_v, u = self._kin_inputs(b)
+            predict_kinematic(b.x, b.p, h, q_v, tn.q_b, self._q_p[b.axis], u)
         elif role == SWING:
             f, w2 = self._swing_input(b)
             predict_pendulum(b.x, b.p, h, w2, tn.q_a, tn.q_e, f)
@@ -122,17 +127,11 @@ class MeasuredPrediction:
         tn = self.tuning
         role = b.role
         if role == KIN:
-            i = b.axis
-            q_v = (tn.q_v if i < 2 else tn.q_vz) if self._imu_fresh(b.t) else tn.q_v_no_imu
-            h2 = h * h
-            h3 = h2 * h
-            return (1.0, h, -0.5 * h2), self._q_p[i] * h + q_v * h3 / 3.0 + tn.q_b * (h3 * h) * h / 20.0
+            q_v, _ = self._kin_inputs(b)
+            return kinematic_first_row(h, q_v, tn.q_b, self._q_p[b.axis])
         if role == SWING:
-            _, w2 = self._swing_input(b)
-            c00, c01, _, _, _, _ = pendulum_terms(h, w2)
-            return (c00, c01, 0.0), pendulum_noise(h, w2, tn.q_a)[0]
-        q = tn.q_psi if b is self._head else tn.q_n
-        return (1.0, h), q * (h * h) * h / 3.0
+            return pendulum_first_row(h, self._swing_input(b)[1], tn.q_a)
+        return rate_first_row(h, tn.q_psi if b is self._head else tn.q_n)
 
     def _var0(self, b: Block, t: float) -> float:
         """The variance of ``b``'s first state predicted to ``t`` (``(Phi P Phi^T + Q)[0][0]``; ``b`` untouched)."""
@@ -165,8 +164,7 @@ class MeasuredPrediction:
             u = self._u_tilt[b.axis]
             return [x[0] + h * x[1] + 0.5 * h * h * u, x[1] + h * u]
         if b.role == KIN:
-            i = b.axis
-            acc = (self._u[i] if self._imu_fresh(b.t) else 0.0) - x[2]
+            acc = self._kin_inputs(b)[1] - x[2]
             return [x[0] + h * x[1] + 0.5 * h * h * acc, x[1] + h * acc, x[2]]
         f, w2 = self._swing_input(b)  # a swing block
         c00, c01, c10, c11, g0, g1 = pendulum_terms(h, w2)

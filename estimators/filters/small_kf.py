@@ -262,6 +262,27 @@ def predict_rate(x: list[float], p: Matrix, h: float, q: float, u: float) -> Non
     r1[0], r1[1] = n01, n11
 
 
+def kinematic_first_row(h: float, q_v: float, q_b: float, q_p: float) -> tuple[tuple[float, float, float], float]:
+    """Row 0 of :func:`kinematic_model`'s Phi and ``Q[0][0]`` (the same floats), alone: a position's predicted variance
+    without the rest of the model (the filter's standard deviations, every tick)."""
+    h2 = h * h
+    h3 = h2 * h
+    h4 = h3 * h
+    return (1.0, h, -0.5 * h2), q_p * h + q_v * h3 / 3.0 + q_b * h4 * h / 20.0
+
+
+def pendulum_first_row(h: float, w2: float, q_a: float) -> tuple[tuple[float, float, float], float]:
+    """Row 0 of :func:`pendulum_model`'s Phi and ``Q[0][0]``, alone (as :func:`kinematic_first_row`)."""
+    c00, c01, _, _, _, _ = pendulum_terms(h, w2)
+    return (c00, c01, 0.0), pendulum_noise(h, w2, q_a)[0]
+
+
+def rate_first_row(h: float, q: float) -> tuple[tuple[float, float], float]:
+    """Row 0 of :func:`rate_model`'s Phi and ``Q[0][0]``, alone (as :func:`kinematic_first_row`)."""
+    h2 = h * h
+    return (1.0, h), q * h2 * h / 3.0
+
+
 def predict_mean(x: list[float], phi: Matrix, gamma: list[float] | None, u: float) -> list[float]:
     """``Phi x + Gamma u`` (a new list; ``x`` untouched)."""
     rn = range(len(x))
@@ -345,7 +366,9 @@ def update_row(
 
 __all__ = [
     "apply_gain",
+    "kinematic_first_row",
     "kinematic_model",
+    "pendulum_first_row",
     "pendulum_model",
     "pendulum_noise",
     "pendulum_terms",
@@ -356,6 +379,7 @@ __all__ = [
     "predict_rate",
     "propagate_cov",
     "propagate_cov3",
+    "rate_first_row",
     "rate_model",
     "update_one",
     "update_row",

@@ -168,6 +168,7 @@ def run(
         mixer.reset(0.25 * u[0])
     att_path = None
     if config.actuators == "px4-attitude":  # the attitude setpoint through PX4's attitude P, rate PID, allocator
+        from offboard.control.smc_attitude import AttitudeCommand
         from offboard.flight.command_mapping import MappingConfig
         from sim_bridge.inner.px4_attitude_path import Px4AttitudePath
 
@@ -191,9 +192,11 @@ def run(
             mixer.allocate(cmd.thrust, cmd.tau_phi, cmd.tau_theta, cmd.tau_psi)
             u[0:4] = mixer.wrench()
         elif att_path is not None:  # the law's attitude setpoint, its tilt clipped as slung fly's mapping clips it
-            phi_sp = min(max(getattr(cmd, "phi_sp", 0.0), -max_tilt), max_tilt)
-            theta_sp = min(max(getattr(cmd, "theta_sp", 0.0), -max_tilt), max_tilt)
-            att_path.set_setpoint(phi_sp, theta_sp, getattr(cmd, "psi_sp", x[8]), cmd.thrust)
+            if not isinstance(cmd, AttitudeCommand):
+                raise ValueError("actuators 'px4-attitude' need the attitude-level law (an attitude setpoint)")
+            phi_sp = min(max(cmd.phi_sp, -max_tilt), max_tilt)
+            theta_sp = min(max(cmd.theta_sp, -max_tilt), max_tilt)
+            att_path.set_setpoint(phi_sp, theta_sp, cmd.psi_sp, cmd.thrust)
             u[0:4] = att_path.wrench()
         tens = tension(x, u, p)
         data[tick, COL["tension"]] = tens

@@ -97,9 +97,9 @@ def live_tuning(config: ReplayConfig) -> Any:
     setting of it a flight chooses."""
     if not config.external_feedforward or config.estimator != "kf":
         return None
-    from estimators.filters.measured_model import MeasuredTuning
+    from estimators.filters.measured_model import FEEDFORWARD_TUNING
 
-    return MeasuredTuning(external_feedforward=True)
+    return FEEDFORWARD_TUNING
 
 
 def _find_start(

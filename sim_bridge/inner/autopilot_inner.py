@@ -27,11 +27,7 @@ from sim_bridge.inner.airframe import (
     body_rates,
 )
 from sim_bridge.inner.ardupilot_inner import limit_tilt, throttle_to_actuator, thrust_curve
-from sim_bridge.inner.px4_inner import (
-    Px4Motors,
-    Px4RateGains,
-    Rotor,
-)
+from sim_bridge.inner.px4_inner import Px4Motors, configure_px4_loops
 
 log = logging.getLogger("sim_bridge.autopilot")
 
@@ -43,34 +39,9 @@ class InnerControl:
         """Push parameter values into the controllers (at start and after every PARAM_SET of ``changed``)."""
         att, pos = self.att, self.pos
         if self.fl.is_px4:
-            p = self._p
-            self.px4_att.set_gains(p("MC_ROLL_P"), p("MC_PITCH_P"), p("MC_YAW_P"), p("MC_YAW_WEIGHT"))
-            self.px4_att.rate_limit = [
-                math.radians(p("MC_ROLLRATE_MAX")),
-                math.radians(p("MC_PITCHRATE_MAX")),
-                math.radians(p("MC_YAWRATE_MAX")),
-            ]
-            axes = ("ROLL", "PITCH", "YAW")
-            self.px4_rate.set_gains(
-                Px4RateGains(
-                    p=tuple(p(f"MC_{a}RATE_P") for a in axes),  # type: ignore[arg-type]
-                    i=tuple(p(f"MC_{a}RATE_I") for a in axes),  # type: ignore[arg-type]
-                    d=tuple(p(f"MC_{a}RATE_D") for a in axes),  # type: ignore[arg-type]
-                    ff=tuple(p(f"MC_{a}RATE_FF") for a in axes),  # type: ignore[arg-type]
-                    k=tuple(p(f"MC_{a}RATE_K") for a in axes),  # type: ignore[arg-type]
-                    int_lim=(p("MC_RR_INT_LIM"), p("MC_PR_INT_LIM"), p("MC_YR_INT_LIM")),
-                )
-            )
-            if changed is None or changed.startswith("IMU_"):
-                self.px4_rate.set_filters(p("IMU_GYRO_CUTOFF"), p("IMU_DGYRO_CUTOFF"))
-            if changed is None or changed.startswith("CA_"):
-                rotors = tuple(
-                    Rotor(p(f"CA_ROTOR{n}_PX"), p(f"CA_ROTOR{n}_PY"), p(f"CA_ROTOR{n}_CT"), p(f"CA_ROTOR{n}_KM"))
-                    for n in range(4)
-                )
-                self.px4_alloc.set_rotors(rotors)
+            rotors = configure_px4_loops(self._p, self.px4_att, self.px4_rate, self.px4_alloc, changed)
+            if rotors is not None:
                 self.px4_motors = Px4Motors(self.vehicle, rotors, self.dt)
-            self.px4_alloc.airmode = int(p("MC_AIRMODE"))
             pos.xy_p, pos.z_p = self._p("MPC_XY_P"), self._p("MPC_Z_P")
             pos.xy_vel_p, pos.xy_vel_i = self._p("MPC_XY_VEL_P_ACC"), self._p("MPC_XY_VEL_I_ACC")
             pos.z_vel_p, pos.z_vel_i = self._p("MPC_Z_VEL_P_ACC"), self._p("MPC_Z_VEL_I_ACC")

@@ -1,6 +1,7 @@
 """What an attitude setpoint meets on PX4, for the in-process simulation: the emulator's PX4 inner loops
 (``sim_bridge.inner.px4_inner``: quaternion attitude P, rate PID, sequential-desaturation allocator, motors with
-lag) with the parameters the emulator's PX4 flavour gives the vehicle (``sim_bridge.modes.flavors.px4_params``:
+lag) with the parameters the emulator's PX4 flavour gives the vehicle, applied as the emulator applies them
+(``px4_inner.configure_px4_loops``) (``sim_bridge.modes.flavors.px4_params``:
 MC_ROLL_P 4, the stock rate gains scaled to the vehicle's inertia and unit torque), scheduled as the emulator runs
 them: attitude P at a quarter of the plant rate, rate loop and allocator at half, motors every plant step.
 
@@ -24,8 +25,8 @@ from sim_bridge.inner.px4_inner import (
     Px4AttitudeControl,
     Px4Motors,
     Px4RateControl,
-    Px4RateGains,
-    Rotor,
+    configure_px4_loops,
+    quad_rotors,
 )
 
 
@@ -37,26 +38,10 @@ class Px4AttitudePath:
 
         prm = {name: p.value for name, p in px4_params(vehicle).items()}
         self.att = Px4AttitudeControl()
-        self.att.set_gains(prm["MC_ROLL_P"], prm["MC_PITCH_P"], prm["MC_YAW_P"], prm["MC_YAW_WEIGHT"])
-        self.att.rate_limit = [math.radians(prm[f"MC_{a}RATE_MAX"]) for a in ("ROLL", "PITCH", "YAW")]
         self.rate = Px4RateControl(1.0 / (2.0 * dt))
-        axes = ("ROLL", "PITCH", "YAW")
-        self.rate.set_gains(
-            Px4RateGains(
-                p=tuple(prm[f"MC_{a}RATE_P"] for a in axes),  # type: ignore[arg-type]
-                i=tuple(prm[f"MC_{a}RATE_I"] for a in axes),  # type: ignore[arg-type]
-                d=tuple(prm[f"MC_{a}RATE_D"] for a in axes),  # type: ignore[arg-type]
-                ff=tuple(prm[f"MC_{a}RATE_FF"] for a in axes),  # type: ignore[arg-type]
-                k=tuple(prm[f"MC_{a}RATE_K"] for a in axes),  # type: ignore[arg-type]
-                int_lim=(prm["MC_RR_INT_LIM"], prm["MC_PR_INT_LIM"], prm["MC_YR_INT_LIM"]),
-            )
-        )
-        self.rate.set_filters(prm["IMU_GYRO_CUTOFF"], prm["IMU_DGYRO_CUTOFF"])
-        rotors = tuple(
-            Rotor(prm[f"CA_ROTOR{n}_PX"], prm[f"CA_ROTOR{n}_PY"], prm[f"CA_ROTOR{n}_CT"], prm[f"CA_ROTOR{n}_KM"])
-            for n in range(4)
-        )
-        self.alloc = Px4Allocator(rotors, int(prm["MC_AIRMODE"]))
+        self.alloc = Px4Allocator(quad_rotors(vehicle.frame))
+        rotors = configure_px4_loops(prm.__getitem__, self.att, self.rate, self.alloc)
+        assert rotors is not None  # every parameter applied: the rotors among them
         self.motors = Px4Motors(vehicle, rotors, dt)
         self.tmax = vehicle.thrust_max
         self.q_sp: Quat = (1.0, 0.0, 0.0, 0.0)

@@ -25,6 +25,7 @@ N m (``Px4Motors.wrench_frd``); motor commands 0..1.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -444,6 +445,40 @@ class Px4ActuatorPath:
         return self._model(self.motors.step())
 
 
+def configure_px4_loops(
+    param: Callable[[str], float],
+    att: Px4AttitudeControl,
+    rate: Px4RateControl,
+    alloc: Px4Allocator,
+    changed: str | None = None,
+) -> tuple[Rotor, ...] | None:
+    """Push PX4's parameters (``param(name)``: MC_*_P, MC_*RATE_*, IMU_*GYRO_CUTOFF, CA_ROTOR*, MC_AIRMODE) into its
+    attitude P, rate PID and allocator, as PX4 applies them. ``changed``: the one parameter just set (None: all):
+    the gyro filters are re-designed only for an IMU_ parameter, the rotors only for a CA_ one. Returns the rotors
+    when they were set (the caller's motors sit at their positions), else None."""
+    att.set_gains(param("MC_ROLL_P"), param("MC_PITCH_P"), param("MC_YAW_P"), param("MC_YAW_WEIGHT"))
+    att.rate_limit = [math.radians(param(f"MC_{a}RATE_MAX")) for a in ("ROLL", "PITCH", "YAW")]
+    axes = ("ROLL", "PITCH", "YAW")
+    rate.set_gains(
+        Px4RateGains(
+            p=tuple(param(f"MC_{a}RATE_P") for a in axes),  # type: ignore[arg-type]
+            i=tuple(param(f"MC_{a}RATE_I") for a in axes),  # type: ignore[arg-type]
+            d=tuple(param(f"MC_{a}RATE_D") for a in axes),  # type: ignore[arg-type]
+            ff=tuple(param(f"MC_{a}RATE_FF") for a in axes),  # type: ignore[arg-type]
+            k=tuple(param(f"MC_{a}RATE_K") for a in axes),  # type: ignore[arg-type]
+            int_lim=(param("MC_RR_INT_LIM"), param("MC_PR_INT_LIM"), param("MC_YR_INT_LIM")),
+        )
+    )
+    if changed is None or changed.startswith("IMU_"):
+        rate.set_filters(param("IMU_GYRO_CUTOFF"), param("IMU_DGYRO_CUTOFF"))
+    rotors = None
+    if changed is None or changed.startswith("CA_"):
+        rotors = tuple(Rotor(*(param(f"CA_ROTOR{n}_{k}") for k in ("PX", "PY", "CT", "KM"))) for n in range(4))
+        alloc.set_rotors(rotors)
+    alloc.airmode = int(param("MC_AIRMODE"))
+    return rotors
+
+
 __all__ = [
     "QUAD_PLUS",
     "QUAD_X",
@@ -455,5 +490,6 @@ __all__ = [
     "Px4RateControl",
     "Px4RateGains",
     "Rotor",
+    "configure_px4_loops",
     "quad_rotors",
 ]

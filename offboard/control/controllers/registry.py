@@ -51,9 +51,9 @@ def filter_tuning(controller: str, estimator: str = "kf") -> object | None:
     (docs/compare.md#results-1000-runs-of-the-default-distribution-the-filter-in-the-loop)."""
     if controller != "smc" or estimator != "kf":
         return None
-    from estimators.filters.measured_model import MeasuredTuning
+    from estimators.filters.measured_model import FEEDFORWARD_TUNING
 
-    return MeasuredTuning(external_feedforward=True)
+    return FEEDFORWARD_TUNING
 
 
 def _smc(vehicle: Vehicle, switching: str = "sign", epsilon: float = 1.0) -> Controller:
