@@ -50,15 +50,17 @@ def _attitude_setpoints(tlog: Path) -> list[tuple[float, float]]:
 
 @pytest.mark.slow
 def test_the_same_case_over_mavlink_gives_the_simulations_figures(tmp_path: Path) -> None:
-    """The 6 s rest-to-rest move, the sliding-mode law and the stock cascade, each flown against the emulator: both
-    complete, every figure of the simulation's table is there, the swing the move excites is the simulation's
-    within 50 % (the same plant behind the autopilot's own attitude loops), the sliding-mode law's peak swing
-    stays within 1.5x of the physical lower bound, and the cascade flew its own attitude setpoints (it
-    pitches toward the move and back, within the autopilot's 45 deg tilt limit)."""
+    """The 6 s rest-to-rest move, the sliding-mode laws (torque and attitude level) and the stock cascade, each flown
+    against the emulator: all complete, every figure of the simulation's table is there, the swing the move excites
+    is the simulation's within 50 % and the tracking within 3x either way (the same plant behind the autopilot's own
+    attitude loops; the attitude-level law designed for them in both, which it was not in process before: 0.95 m
+    RMS there against 0.025 m flown), the sliding-mode laws' peak swing stays within 1.5x of the physical lower
+    bound, and the cascade flew its own attitude setpoints (it pitches toward the move and back, within the
+    autopilot's 45 deg tilt limit)."""
     vehicle = load_vehicle(None)
     case = next(c for c in compare.cases("rest-to-rest") if c.move_time == 6.0)
     config = SimConfig(estimator="kf", sensors="px4-typical", load_sensor=True, seed=0)
-    for name in ("smc", "cascade"):
+    for name in ("smc", "smc-attitude", "cascade"):
         sim = compare.run_case(case, name, vehicle, config)
         out = tmp_path / name
         args = compare_mavlink.demo_args(
@@ -71,13 +73,14 @@ def test_the_same_case_over_mavlink_gives_the_simulations_figures(tmp_path: Path
         assert f["lower_bound_rad"] == s["lower_bound_rad"]
         assert 0.67 * s["peak_swing_rad"] <= f["peak_swing_rad"] <= 1.5 * s["peak_swing_rad"], (name, f, s)
         assert f["tracking_rms_m"] < 3.0 * s["tracking_rms_m"] + 0.02, (name, f, s)
+        assert s["tracking_rms_m"] < 3.0 * f["tracking_rms_m"] + 0.02, (name, f, s)
         # in the case's own coordinates: the load ends at the move's end, 3 m from where the move started
         fx = flown.log.column("Fx")
         assert abs(fx[-1] - compare.REST_TO_REST_DISTANCE_M) < 0.1 and abs(fx[0]) < 0.1, (fx[0], fx[-1])
         sp = np.array(_attitude_setpoints(out / "flight.tlog"))
         assert len(sp) >= 0.9 * len(fx), (len(sp), len(fx))
-        if name == "smc":
-            assert f["peak_over_bound"] <= 1.5, f
+        if name.startswith("smc"):
+            assert f["peak_over_bound"] <= 1.5, (name, f)
         else:
             pitch = sp[:, 1]
             # moving +x in the model frame (NWU, FLU) the cascade pitches nose down (theta > 0) and then brakes

@@ -19,6 +19,7 @@ FRD). No PX4 code is copied; the normalization rules are restated from its sourc
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -83,4 +84,24 @@ def unit_torques(rotors: list[Rotor], vehicle: Vehicle) -> tuple[float, float, f
     return float(abs(roll)), float(abs(pitch)), float(abs(yaw))
 
 
-__all__ = ["Rotor", "normalized_mix", "unit_torques"]
+def unit_torques_from_params(get: Callable[[str], float | None], vehicle: Vehicle) -> tuple[float, float, float] | None:
+    """:func:`unit_torques` for the rotors that PX4's parameters describe: ``get(name)`` reads a parameter (None:
+    no answer) for CA_ROTOR_COUNT and CA_ROTORn_PX / PY / CT / KM. None when they do not all answer or describe no
+    allocation (PX4 <= v1.13's mixers have no such parameters)."""
+    n = get("CA_ROTOR_COUNT")
+    if n is None or not math.isfinite(n) or not (1 <= int(n) <= 12):
+        return None
+    rotors = []
+    for i in range(int(n)):
+        vals = [get(f"CA_ROTOR{i}_{k}") for k in ("PX", "PY", "CT", "KM")]
+        if any(v is None or not math.isfinite(v) for v in vals):
+            return None
+        px, py, ct, km = (float(v) for v in vals)  # type: ignore[arg-type]
+        rotors.append(Rotor(px, py, ct, km))
+    try:
+        return unit_torques(rotors, vehicle)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+
+
+__all__ = ["Rotor", "normalized_mix", "unit_torques", "unit_torques_from_params"]

@@ -236,12 +236,19 @@ def run_case(
     from offboard.harness import sim
 
     params = smc.ControllerParams.for_vehicle(vehicle, switching=switching, epsilon=epsilon)
-    law = registry.make(controller, vehicle, switching=switching, epsilon=epsilon)
-    tuning = registry.filter_tuning(controller, config.estimator)
+    inner = tilt_max = None
     if controller == "smc-attitude" and config.actuators == "ideal":
         # the attitude-level law commands an attitude and a thrust: flown through PX4's attitude P, rate PID,
-        # allocator and motors (sim_bridge.inner.px4_attitude_path), as slung fly flies it through an autopilot
+        # allocator and motors (sim_bridge.inner.px4_attitude_path), as slung fly flies it through an autopilot,
+        # and designed as slung fly designs it for those loops: for what it would read from their parameters, within
+        # the tilt its mapping clips to (the path clips the same)
+        from offboard.flight.command_mapping import MappingConfig
+        from offboard.harness.emulated_autopilot import emulated_inner_loop
+
         config = replace(config, actuators="px4-attitude")
+        inner, tilt_max = emulated_inner_loop(vehicle, "px4"), MappingConfig().max_tilt
+    law = registry.make(controller, vehicle, switching=switching, epsilon=epsilon, inner=inner, tilt_max=tilt_max)
+    tuning = registry.filter_tuning(controller, config.estimator)
     # with motors in the loop the filter is given the command through their lag, as the live loop gives it
     lag = config.actuators == "px4-attitude"
     log = sim.run(case.scenario, vehicle, params, config, controller=law, tuning=tuning, command_lag=lag)

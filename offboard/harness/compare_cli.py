@@ -54,12 +54,16 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
 
 
-def designs_missing(names: list[str], vehicle: Any) -> dict[str, str]:
-    """The controllers of ``names`` that have no design for ``vehicle``, with why (``registry.not_designed_for``),
-    each said on stderr: they are flown all the same (the comparison shows what they do), and their rows say it."""
+def designs_missing(names: list[str], vehicle: Any, flavour: str = "px4") -> dict[str, str]:
+    """The controllers of ``names`` that have no design for ``vehicle`` behind the emulator's ``flavour`` loops (the
+    ones they fly through, in process and over MAVLink), with why (``registry.not_designed_for``), each said on
+    stderr: they are flown all the same (the comparison shows what they do), and their rows say it."""
+    from offboard.harness.emulated_autopilot import emulated_inner_loop
+
+    inner = emulated_inner_loop(vehicle, flavour)
     missing = {}
     for name in names:
-        reason = registry.not_designed_for(name, vehicle)
+        reason = registry.not_designed_for(name, vehicle, inner)
         if reason is not None:
             missing[name] = reason
             print(f"compare: warning: {name}: {reason}", file=sys.stderr)
@@ -74,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
         if args.estimator != "kf" or args.no_load_sensor:
             raise UserError("--mavlink flies with the Kalman filter on the emulator's telemetry, cable angle included")
     names = registry.parse_list(args.controllers)
-    no_design = designs_missing(names, vehicle)
+    no_design = designs_missing(names, vehicle, args.flavor if args.mavlink else "px4")
     out = prepare_output_dir(args.out)
     config = SimConfig(
         estimator=args.estimator,

@@ -12,6 +12,7 @@ from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc
 from offboard.control.controllers.protocol import Controller
+from offboard.control.smc_attitude_design import InnerLoop
 
 #: the attitude telemetry's age the ``smc`` row's law leads over besides the motors' lag (s): px4-typical's
 #: 100 Hz ATTITUDE is 5 ms old on average when the next one arrives, plus 4 ms latency and 1.5 ms mean jitter,
@@ -56,19 +57,25 @@ def filter_tuning(controller: str, estimator: str = "kf") -> object | None:
     return FEEDFORWARD_TUNING
 
 
-def _smc(vehicle: Vehicle, switching: str = "sign", epsilon: float = 1.0) -> Controller:
+def _smc(vehicle: Vehicle, switching: str = "sign", epsilon: float = 1.0, **_: object) -> Controller:
     from offboard.control.controllers.sliding_mode import SlidingModeController
 
     return SlidingModeController(smc_params(vehicle, switching, epsilon))
 
 
-def _smc_attitude(vehicle: Vehicle, **_: object) -> Controller:
-    """The attitude-level law with its own default switching (smooth, as ``slung fly --law attitude``) and the
-    default inner loop; in ``slung sim`` its torque fields (the rate loop's expected torques) drive the plant."""
+def _smc_attitude(
+    vehicle: Vehicle, inner: InnerLoop | None = None, tilt_max: float | None = None, **_: object
+) -> Controller:
+    """The attitude-level law with its own default switching (smooth, as ``slung fly --law attitude``), designed for
+    ``inner``, the autopilot loops it flies through (None: :class:`InnerLoop`'s generic defaults; ``slung fly``
+    designs it for the loops it reads from the autopilot), within ``tilt_max`` (rad; None: the law's default)."""
     from offboard.control import smc_attitude
     from offboard.control.controllers.sliding_mode import AttitudeSlidingModeController
 
-    params = smc_attitude.AttitudeParams.for_vehicle(vehicle, overrides=dict(vehicle.gains), switching="smooth")
+    kw: dict[str, object] = {} if tilt_max is None else {"tilt_max": tilt_max}
+    params = smc_attitude.AttitudeParams.for_vehicle(
+        vehicle, inner=inner, overrides=dict(vehicle.gains), switching="smooth", **kw
+    )
     return AttitudeSlidingModeController(params)
 
 
@@ -114,29 +121,39 @@ CONTROLLERS: dict[str, Callable[..., Controller]] = {
 }
 
 
-def make(name: str, vehicle: Vehicle, switching: str = "sign", epsilon: float = 1.0) -> Controller:
-    """A fresh controller ``name`` for the nominal ``vehicle``; UserError for an unknown name."""
+def make(
+    name: str,
+    vehicle: Vehicle,
+    switching: str = "sign",
+    epsilon: float = 1.0,
+    inner: InnerLoop | None = None,
+    tilt_max: float | None = None,
+) -> Controller:
+    """A fresh controller ``name`` for the nominal ``vehicle``; UserError for an unknown name. ``inner`` and
+    ``tilt_max``: the autopilot loops and tilt limit the attitude-level law (``smc-attitude``) flies behind (the
+    others ignore them)."""
     factory = CONTROLLERS.get(name)
     if factory is None:
         raise UserError(f"unknown controller {name!r} (known: {', '.join(CONTROLLERS)})")
-    return factory(vehicle, switching=switching, epsilon=epsilon)
+    return factory(vehicle, switching=switching, epsilon=epsilon, inner=inner, tilt_max=tilt_max)
 
 
-def not_designed_for(controller: str, vehicle: Vehicle) -> str | None:
-    """Why ``controller`` is not designed for ``vehicle`` (None: it is). The attitude-level law
-    (``smc-attitude``) has gains only where they stay stable behind PX4's default attitude loop
-    (``smc_attitude.robust_gains_exist``): not for a load that swings faster than that loop follows, the paper's
-    vehicle among them, where ``slung fly --law auto`` flies the torque-level law instead; flown anyway there it
-    diverged in the in-process comparison with the filter (docs/compare.md)."""
+def not_designed_for(controller: str, vehicle: Vehicle, inner: InnerLoop | None = None) -> str | None:
+    """Why ``controller`` is not designed for ``vehicle`` behind the autopilot loops ``inner`` (None: it is; inner
+    None: :class:`InnerLoop`'s generic defaults). The attitude-level law (``smc-attitude``) has gains only where
+    they stay stable with those loops 2x off (``smc_attitude.robust_gains_exist``): not for a load that swings
+    faster than the loops follow, where ``slung fly --law auto`` flies the torque-level law instead."""
     if controller != "smc-attitude":
         return None
     from offboard.control import smc_attitude
 
-    if smc_attitude.robust_gains_exist(vehicle, smc_attitude.InnerLoop()):
+    loops = inner if inner is not None else smc_attitude.InnerLoop()
+    if smc_attitude.robust_gains_exist(vehicle, loops):
         return None
     return (
-        f"no attitude-level gains stay stable for {vehicle.name} behind PX4's default attitude loop (its load swings "
-        "faster than that loop follows); slung fly --law auto flies the torque-level law (smc) there"
+        f"no attitude-level gains stay stable for {vehicle.name} behind this autopilot's attitude loop "
+        f"({loops.attitude_bandwidth:g} 1/s, rate loops {loops.rate_bandwidth[0]:.3g} 1/s; its load swings faster "
+        "than that loop follows); slung fly --law auto flies the torque-level law (smc) there"
     )
 
 

@@ -1,6 +1,7 @@
 """What the flight side assumes of the autopilot's inner loops (flavour, attitude P gains, rate bandwidths, hover
-throttle, ...): read from its parameters by ``offboard.flight.link.management`` and used by the command mappers
-(``offboard.flight.command_mapping``, ``offboard.flight.attitude_mapping``).
+throttle, ...): read from its parameters (:func:`autopilot_model_from_params`, over the link by
+``offboard.flight.link.management``, in process from the emulator's parameter table by ``slung compare``) and used by
+the command mappers (``offboard.flight.command_mapping``, ``offboard.flight.attitude_mapping``).
 
 Here, below both, so that the link does not import the mapping above it.
 """
@@ -8,8 +9,10 @@ Here, below both, so that the link does not import the mapping above it.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
+from estimators.model.vehicle import Vehicle
 from offboard.control.options import Flavour, values
 
 
@@ -46,4 +49,81 @@ class AutopilotModel:
             raise ValueError(f"hover_thrust_norm must be in (0, 1), got {h!r}")
 
 
-__all__ = ["AutopilotModel"]
+#: per flavour: the attitude P, rate P and rate I parameters (roll, pitch, yaw) and the hover throttle's
+_PARAMS = {
+    "px4": (
+        ("MC_ROLL_P", "MC_PITCH_P", "MC_YAW_P"),
+        ("MC_ROLLRATE_P", "MC_PITCHRATE_P", "MC_YAWRATE_P"),
+        ("MC_ROLLRATE_I", "MC_PITCHRATE_I", "MC_YAWRATE_I"),
+        "MPC_THR_HOVER",
+    ),
+    "ardupilot": (
+        ("ATC_ANG_RLL_P", "ATC_ANG_PIT_P", "ATC_ANG_YAW_P"),
+        ("ATC_RAT_RLL_P", "ATC_RAT_PIT_P", "ATC_RAT_YAW_P"),
+        ("ATC_RAT_RLL_I", "ATC_RAT_PIT_I", "ATC_RAT_YAW_I"),
+        "MOT_THST_HOVER",
+    ),
+}
+
+
+def autopilot_model_from_params(
+    flavour: str,
+    get: Callable[[str], float | None],
+    vehicle: Vehicle,
+    unit_torque: tuple[float, float, float] | None = None,
+    angle_boost_default: bool = True,
+    warn: Callable[[str], None] | None = None,
+) -> AutopilotModel:
+    """The :class:`AutopilotModel` of an autopilot whose parameters ``get(name)`` reads (None: no answer); the
+    defaults, each with a ``warn``, for those that do not answer.
+
+    Rate-loop bandwidth per axis ``B = K_p tau_max / I`` (the rate P gain is in normalized torque per rad/s,
+    normalized by ``unit_torque`` where PX4's allocator gives it, ``offboard.flight.px4_allocation``, else by the
+    vehicle file's maximum torque per axis); rate I/P ratio per axis; hover throttle (the vehicle file's where the
+    autopilot does not tell, a warning where the two differ by more than 10 %); ArduPilot's ATC_ANGLE_BOOST."""
+    say = warn if warn is not None else (lambda _msg: None)
+    att, rate, rate_i, hover = _PARAMS[flavour]
+    default = AutopilotModel(flavour=flavour)
+    tmax = unit_torque or (vehicle.roll_pitch_torque_max, vehicle.roll_pitch_torque_max, vehicle.yaw_torque_max)
+    kp = list(default.attitude_p)
+    bw = list(default.rate_bandwidth)
+    ki = list(default.rate_integral)
+    for i in range(3):
+        a, r, ri = get(att[i]), get(rate[i]), get(rate_i[i])
+        if r is not None and ri is not None and r > 0 and math.isfinite(ri) and ri >= 0:
+            ki[i] = ri / r
+        if a is not None and math.isfinite(a) and a > 0:
+            kp[i] = a
+        else:
+            say(f"{att[i]} not readable: assuming {kp[i]:g}")
+        if r is not None and math.isfinite(r) and r > 0:
+            bw[i] = r * tmax[i] / vehicle.inertia[i]
+        else:
+            say(f"{rate[i]} not readable: assuming a rate bandwidth of {bw[i]:g} 1/s")
+    h = get(hover)
+    hover_norm = vehicle.hover_throttle  # the vehicle file's, when the autopilot does not tell
+    if h is not None and 0.0 < h < 1.0:
+        hover_norm = h
+        mine = vehicle.hover_thrust_normalized
+        if abs(h - mine) > 0.1 * mine:
+            say(
+                f"{hover} = {h:.3f} differs from the vehicle file's hover thrust {mine:.3f} "
+                "(total weight / max thrust) by more than 10 %: check the vehicle file"
+            )
+    boost = angle_boost_default
+    if flavour == "ardupilot":
+        b = get("ATC_ANGLE_BOOST")
+        boost = bool(b) if b is not None else angle_boost_default
+    unit = None if unit_torque is None else (float(unit_torque[0]), float(unit_torque[1]), float(unit_torque[2]))
+    return AutopilotModel(
+        flavour,
+        (kp[0], kp[1], kp[2]),
+        (bw[0], bw[1], bw[2]),
+        hover_norm,
+        boost,
+        (ki[0], ki[1], ki[2]),
+        unit_torque=unit,
+    )
+
+
+__all__ = ["AutopilotModel", "autopilot_model_from_params"]

@@ -29,11 +29,9 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle
-from offboard.flight.link.autopilot_model import AutopilotModel
+from offboard.flight.link.autopilot_model import AutopilotModel, autopilot_model_from_params
 from offboard.flight.link.connection import MavConnection
 from offboard.flight.link.telemetry import MESSAGE_IDS
 
@@ -107,75 +105,21 @@ class Manager:
 
     def read_autopilot_model(self, vehicle: Vehicle, angle_boost_default: bool = True) -> AutopilotModel:
         """The autopilot's attitude / rate gains and hover throttle, read as parameters, as an
-        :class:`AutopilotModel`; defaults (with a warning) for parameters that do not answer.
-
-        Rate-loop bandwidth per axis ``B = K_p tau_max / I`` (the rate P gain is in normalized torque per rad/s,
-        normalized by the vehicle file's maximum torque per axis).
-        """
-        fl = self.flavour
-        if fl == "px4":
-            att = ("MC_ROLL_P", "MC_PITCH_P", "MC_YAW_P")
-            rate = ("MC_ROLLRATE_P", "MC_PITCHRATE_P", "MC_YAWRATE_P")
-            rate_i = ("MC_ROLLRATE_I", "MC_PITCHRATE_I", "MC_YAWRATE_I")
-            hover = "MPC_THR_HOVER"
-        else:
-            att = ("ATC_ANG_RLL_P", "ATC_ANG_PIT_P", "ATC_ANG_YAW_P")
-            rate = ("ATC_RAT_RLL_P", "ATC_RAT_PIT_P", "ATC_RAT_YAW_P")
-            rate_i = ("ATC_RAT_RLL_I", "ATC_RAT_PIT_I", "ATC_RAT_YAW_I")
-            hover = "MOT_THST_HOVER"
-        default = AutopilotModel(flavour=fl)
-        tmax = (vehicle.roll_pitch_torque_max, vehicle.roll_pitch_torque_max, vehicle.yaw_torque_max)
+        :class:`AutopilotModel` (``autopilot_model.autopilot_model_from_params``); defaults (with a warning) for
+        parameters that do not answer."""
         unit = self.read_px4_unit_torques(vehicle)
         if unit is not None:  # PX4's rate loop outputs torque in its allocator's units, not the hover margin's
-            tmax = unit
             self.note("allocation", f"PX4 unit torque from CA_ROTOR*: {[round(float(u), 3) for u in unit]} N m")
-        elif fl == "px4":  # PX4 <= v1.13 (mixers) and the emulator have no CA_ROTOR* parameters
+        elif self.flavour == "px4":  # PX4 <= v1.13 (mixers) have no CA_ROTOR* parameters
             self.note("allocation", "no CA_ROTOR* parameters: unit torque taken as the vehicle's hover-margin torque")
-        kp = list(default.attitude_p)
-        bw = list(default.rate_bandwidth)
-        ki = list(default.rate_integral)
-        for i in range(3):
-            a = self.conn.param_get(att[i])
-            r = self.conn.param_get(rate[i])
-            ri = self.conn.param_get(rate_i[i])
-            if r is not None and ri is not None and r > 0 and math.isfinite(ri) and ri >= 0:
-                ki[i] = ri / r
-            if a is not None and math.isfinite(a) and a > 0:
-                kp[i] = a
-            else:
-                self.warnings.append(f"{att[i]} not readable: assuming {kp[i]:g}")
-            if r is not None and math.isfinite(r) and r > 0:
-                bw[i] = r * tmax[i] / vehicle.inertia[i]
-            else:
-                self.warnings.append(f"{rate[i]} not readable: assuming a rate bandwidth of {bw[i]:g} 1/s")
-        h = self.conn.param_get(hover)
-        hover_norm = vehicle.hover_throttle  # the vehicle file's, when the autopilot does not tell
-        if h is not None and 0.0 < h < 1.0:
-            hover_norm = h
-            mine = vehicle.hover_thrust_normalized
-            if abs(h - mine) > 0.1 * mine:
-                self.warnings.append(
-                    f"{hover} = {h:.3f} differs from the vehicle file's hover thrust {mine:.3f} "
-                    "(total weight / max thrust) by more than 10 %: check the vehicle file"
-                )
-        boost = angle_boost_default
-        if fl == "ardupilot":
-            b = self.conn.param_get("ATC_ANGLE_BOOST")
-            boost = bool(b) if b is not None else angle_boost_default
-        model = AutopilotModel(
-            fl,
-            (kp[0], kp[1], kp[2]),
-            (bw[0], bw[1], bw[2]),
-            hover_norm,
-            boost,
-            (ki[0], ki[1], ki[2]),
-            unit_torque=None if unit is None else (float(unit[0]), float(unit[1]), float(unit[2])),
+        model = autopilot_model_from_params(
+            self.flavour, self.conn.param_get, vehicle, unit, angle_boost_default, warn=self.warnings.append
         )
         self.note(
             "autopilot_model",
-            f"attitude P {kp}, rate bandwidth {[round(b, 2) for b in bw]} 1/s, "
-            f"rate I/P {[round(v, 3) for v in ki]} 1/s, hover {hover_norm}, "
-            f"angle boost {boost}",
+            f"attitude P {list(model.attitude_p)}, rate bandwidth {[round(b, 2) for b in model.rate_bandwidth]} 1/s, "
+            f"rate I/P {[round(v, 3) for v in model.rate_integral]} 1/s, hover {model.hover_thrust_norm}, "
+            f"angle boost {model.angle_boost}",
         )
         return model
 
@@ -198,22 +142,14 @@ class Manager:
         answer."""
         if self.flavour != "px4":
             return None
-        from offboard.flight.px4_allocation import Rotor, unit_torques
+        from offboard.flight.px4_allocation import unit_torques_from_params
 
-        n = self.conn.param_get("CA_ROTOR_COUNT", timeout=0.3, retries=2)
-        if n is None or not (1 <= int(n) <= 12):
-            return None
-        rotors = []
-        for i in range(int(n)):
-            vals = [self.conn.param_get(f"CA_ROTOR{i}_{k}") for k in ("PX", "PY", "CT", "KM")]
-            if any(v is None or not math.isfinite(v) for v in vals):
-                return None
-            px, py, ct, km = (float(v) for v in vals)  # type: ignore[arg-type]
-            rotors.append(Rotor(px, py, ct, km))
-        try:
-            return unit_torques(rotors, vehicle)
-        except (ValueError, np.linalg.LinAlgError):
-            return None
+        def get(name: str) -> float | None:  # the count first, with fewer retries: a PX4 without it is common
+            if name == "CA_ROTOR_COUNT":
+                return self.conn.param_get(name, timeout=0.3, retries=2)
+            return self.conn.param_get(name)
+
+        return unit_torques_from_params(get, vehicle)
 
     def read_hover_throttle(self) -> float | None:
         """The autopilot's hover throttle now (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER, which ArduPilot learns in
