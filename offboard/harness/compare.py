@@ -41,6 +41,7 @@ from estimators.model.vehicle import Vehicle
 from offboard.control import reference_patterns as patterns
 from offboard.control import smc
 from offboard.control.controllers import registry
+from offboard.control.controllers.protocol import Controller
 from offboard.control.scenarios import make_scenario
 from offboard.logs.runlog import COL, PlantSetup, Scenario, SimConfig, SimLog
 
@@ -236,23 +237,34 @@ def run_case(
     from offboard.harness import sim
 
     params = smc.ControllerParams.for_vehicle(vehicle, switching=switching, epsilon=epsilon)
-    inner = tilt_max = None
-    if controller == "smc-attitude" and config.actuators == "ideal":
-        # the attitude-level law commands an attitude and a thrust: flown through PX4's attitude P, rate PID,
-        # allocator and motors (sim_bridge.inner.px4_attitude_path), as slung fly flies it through an autopilot,
-        # and designed as slung fly designs it for those loops: for what it would read from their parameters, within
-        # the tilt its mapping clips to (the path clips the same)
-        from offboard.flight.command_mapping import MappingConfig
-        from offboard.harness.emulated_autopilot import emulated_inner_loop
-
-        config = replace(config, actuators="px4-attitude")
-        inner, tilt_max = emulated_inner_loop(vehicle, "px4"), MappingConfig().max_tilt
-    law = registry.make(controller, vehicle, switching=switching, epsilon=epsilon, inner=inner, tilt_max=tilt_max)
+    config, law = controller_as_flown(controller, vehicle, config, switching=switching, epsilon=epsilon)
     tuning = registry.filter_tuning(controller, config.estimator)
     # with motors in the loop the filter is given the command through their lag, as the live loop gives it
     lag = config.actuators == "px4-attitude"
     log = sim.run(case.scenario, vehicle, params, config, controller=law, tuning=tuning, command_lag=lag)
     return CaseResult(controller, case, case_figures(case, log), log)
+
+
+def controller_as_flown(
+    controller: str, nominal: Vehicle, config: SimConfig, switching: str = "sign", epsilon: float = 1.0
+) -> tuple[SimConfig, Controller]:
+    """The named controller, fresh, for the ``nominal`` vehicle, and the simulation's config it flies in.
+
+    The attitude-level law (``smc-attitude``) commands an attitude and a thrust: it is flown through PX4's attitude
+    P, rate PID, allocator and motors (``sim_bridge.inner.px4_attitude_path``, actuators ``px4-attitude``) in
+    place of the config's motors (ideal or the mixer), as ``slung fly`` flies it through an autopilot, and designed
+    as ``slung fly`` designs it for those loops: for what it would read from their parameters
+    (``emulated_autopilot``), within the tilt its mapping clips to (the path clips the same). The other
+    controllers keep the config."""
+    inner = tilt_max = None
+    if controller == "smc-attitude" and config.actuators in ("ideal", "mixer"):
+        from offboard.flight.command_mapping import MappingConfig
+        from offboard.harness.emulated_autopilot import emulated_inner_loop
+
+        config = replace(config, actuators="px4-attitude")
+        inner, tilt_max = emulated_inner_loop(nominal, "px4"), MappingConfig().max_tilt
+    law = registry.make(controller, nominal, switching=switching, epsilon=epsilon, inner=inner, tilt_max=tilt_max)
+    return config, law
 
 
 #: columns of the table printed and their format

@@ -47,7 +47,7 @@ PARAMETERS: dict[str, tuple[str, str]] = {
     "mass_vehicle": ("kg", "vehicle mass"),
     "mass_load": ("kg", "load mass"),
     "cable_length": ("m", "cable length"),
-    "inertia": ("kg m^2", "all three moments of inertia (one factor)"),
+    "inertia": ("x", "factor on all three moments of inertia"),
     "motor_time_constant": ("s", "motor lag (with actuators = mixer)"),
     "sensor_noise": ("x", "factor on every sensor noise and the accelerometer bias"),
     "sensor_latency_s": ("s", "latency added to every sensor stream"),
@@ -358,6 +358,7 @@ def run_one(config: SweepConfig, controller: str, run: int) -> dict[str, Any]:
     from offboard.control import smc
     from offboard.control.controllers import registry
     from offboard.harness import sim
+    from offboard.harness.compare import controller_as_flown
     from offboard.logs.runlog import SimConfig
 
     nominal = load_vehicle(config.vehicle_file)
@@ -371,7 +372,8 @@ def run_one(config: SweepConfig, controller: str, run: int) -> dict[str, Any]:
         seed=int(p["sensor_seed"]),
     )
     params = smc.ControllerParams.for_vehicle(nominal)
-    law = registry.make(controller, nominal)
+    # the attitude-level law through PX4's attitude loops and designed for them, as slung compare flies it
+    sim_cfg, law = controller_as_flown(controller, nominal, sim_cfg)
     tuning = registry.filter_tuning(controller, config.estimator)
     log = sim.run(
         sc,
