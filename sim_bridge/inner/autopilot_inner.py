@@ -27,7 +27,7 @@ from sim_bridge.inner.airframe import (
     body_rates,
 )
 from sim_bridge.inner.ardupilot_inner import limit_tilt, throttle_to_actuator, thrust_curve
-from sim_bridge.inner.px4_inner import Px4Motors, configure_px4_loops
+from sim_bridge.inner.px4_inner import Px4Motors, allocate_with_saturation_feedback, configure_px4_loops
 
 log = logging.getLogger("sim_bridge.autopilot")
 
@@ -133,11 +133,9 @@ class InnerControl:
                     rate_sp = model_body_to_frd(*self.rate_sp)
                     tn = self.px4_rate.update(rate_sp, gyro, on_ground)
                 self.torque_norm_sp = tn
-                self.motor_cmd = self.px4_alloc.allocate(tn, self.thrust_cmd / self.tmax)
-                un = self.px4_alloc.unallocated
-                rc = self.px4_rate
-                rc.sat_pos = [un[0] > 1e-6, un[1] > 1e-6, un[2] > 1e-6]
-                rc.sat_neg = [un[0] < -1e-6, un[1] < -1e-6, un[2] < -1e-6]
+                self.motor_cmd = allocate_with_saturation_feedback(
+                    self.px4_alloc, self.px4_rate, tn, self.thrust_cmd / self.tmax
+                )
                 motors.command(self.motor_cmd)
         t, rx, ry, rz = motors.step()
         tx, ty, tz = frd_to_model_body(rx, ry, rz)

@@ -25,6 +25,7 @@ from sim_bridge.inner.px4_inner import (
     Px4AttitudeControl,
     Px4Motors,
     Px4RateControl,
+    allocate_with_saturation_feedback,
     configure_px4_loops,
     quad_rotors,
 )
@@ -78,10 +79,8 @@ class Px4AttitudePath:
         if k & 1 == 0:  # rate PID and allocator at 500 Hz
             gyro = model_body_to_frd(*body_rates(x[6], x[7], x[9], x[10], x[11]))
             tn = self.rate.update(model_body_to_frd(*self.rate_sp), gyro, False)
-            self.motors.command(self.alloc.allocate(tn, self.thrust_sp / self.tmax))
-            un = self.alloc.unallocated
-            self.rate.sat_pos = [un[0] > 1e-6, un[1] > 1e-6, un[2] > 1e-6]
-            self.rate.sat_neg = [un[0] < -1e-6, un[1] < -1e-6, un[2] < -1e-6]
+            u = allocate_with_saturation_feedback(self.alloc, self.rate, tn, self.thrust_sp / self.tmax)
+            self.motors.command(u)
         t, rx, ry, rz = self.motors.step()
         tx, ty, tz = frd_to_model_body(rx, ry, rz)
         return t, tx, ty, tz

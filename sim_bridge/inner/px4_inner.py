@@ -445,6 +445,19 @@ class Px4ActuatorPath:
         return self._model(self.motors.step())
 
 
+def allocate_with_saturation_feedback(
+    alloc: Px4Allocator, rate: Px4RateControl, torque_norm: tuple[float, float, float], thrust_norm: float
+) -> list[float]:
+    """PX4's allocator on a normalized torque (FRD) and thrust (0..1), and what PX4 feeds back from it: the axes and
+    directions it could not allocate freeze the rate loop's integrator (``sat_pos`` / ``sat_neg``). Returns the motor
+    commands 0..1."""
+    u = alloc.allocate(torque_norm, thrust_norm)
+    un = alloc.unallocated
+    rate.sat_pos = [un[0] > 1e-6, un[1] > 1e-6, un[2] > 1e-6]
+    rate.sat_neg = [un[0] < -1e-6, un[1] < -1e-6, un[2] < -1e-6]
+    return u
+
+
 def configure_px4_loops(
     param: Callable[[str], float],
     att: Px4AttitudeControl,
@@ -490,6 +503,7 @@ __all__ = [
     "Px4RateControl",
     "Px4RateGains",
     "Rotor",
+    "allocate_with_saturation_feedback",
     "configure_px4_loops",
     "quad_rotors",
 ]
