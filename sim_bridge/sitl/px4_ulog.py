@@ -216,6 +216,7 @@ class FlightQuality:
     tilt_p95_rad: float
     thrust_std: float
     ekf_offset_mean_m: float
+    ekf_height_error_m: float
 
     def as_dict(self) -> dict[str, float]:
         """The figures as a plain dict (JSON)."""
@@ -237,6 +238,9 @@ def flight_quality(
     - height_error_m: mean true height above the take-off point minus the reference's height above it (the
       reference's EKF z minus EKF2's z of the ground at arming): the height error that does not depend on EKF2's
       origin;
+    - ekf_height_error_m: EKF2's own height error over the stretch, its mean height above its ground at arming minus
+      the truth's above the true ground: what a controller flying EKF2's height cannot see (``height_error_m +
+      ekf_height_error_m`` is the error against the height EKF2 gave it);
     - ekf_error_mean_m / truth_error_mean_m: mean distance of EKF2's position / the true position (each relative
       to its own ground at arming, so that EKF2's origin offset does not count) from the reference, the mean of the
       norm ``mean |p - r|`` (its wander counts, whatever its direction);
@@ -265,6 +269,7 @@ def flight_quality(
     r_truth = ref_at(tp.t).copy()
     r_truth[:, 2] += g_truth - g_ekf  # the reference's height above the ground, in the truth frame
     height_err = float(np.mean(g_truth - truth[:, 2]) - np.mean(g_truth - r_truth[:, 2]))
+    ekf_height_err = float(np.mean(g_ekf - ekf[:, 2]) - np.mean(g_truth - truth[:, 2]))
     ekf_err = float(np.mean(np.linalg.norm(ekf - ref_at(ep.t), axis=1)))
     ekf_offset = float(np.linalg.norm(np.mean(ekf - ref_at(ep.t), axis=0)))
     truth_err = float(np.mean(np.linalg.norm(truth - r_truth, axis=1)))
@@ -273,7 +278,17 @@ def flight_quality(
     th = log.thrust_sp.window(t0, t1)
     thrust_std = float(np.std(th["thrust"])) if len(th) else math.nan
     return FlightQuality(
-        t0, t1, jitter, height_err, ekf_err, truth_err, log.saturated_fraction(t0, t1), tilt95, thrust_std, ekf_offset
+        t0,
+        t1,
+        jitter,
+        height_err,
+        ekf_err,
+        truth_err,
+        log.saturated_fraction(t0, t1),
+        tilt95,
+        thrust_std,
+        ekf_offset,
+        ekf_height_err,
     )
 
 
