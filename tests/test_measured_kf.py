@@ -317,3 +317,50 @@ def test_a_thrust_step_the_accelerometer_confirms_becomes_the_input_at_once() ->
     assert true_rate == pytest.approx(0.8)
     assert rates[True][1] == 0 and abs(rates[True][0] - true_rate) < 0.1, rates
     assert rates[False][1] > 0 and abs(rates[False][0] - true_rate) > 0.2, rates
+
+
+@pytest.mark.parametrize("jitter_us", [False, True])
+def test_fusing_between_ticks_takes_work_off_the_tick_and_drops_nothing(jitter_us: bool) -> None:
+    """``prefuse`` (the live loop's and replay's fusion between ticks): it fuses only records the next tick's
+    estimate would have fused (sampled before its horizon), never makes a record of an in-order stream late (the
+    same records accepted, none dropped), leaves the estimate where the tick-only schedule has it (the same records,
+    fused a tick earlier: within a few millimetres and milliradians), and takes most of the tick's fusions off it."""
+    recs, ticks = _hover_stream(3, 4.0, jitter_us=jitter_us)
+    state0 = truth_state(dynamics.make_state(position=(0.0, 0.0, 1.0), euler=(0.0, 0.0, 0.3)))
+    plain, split = (MeasuredKalmanEstimator(V, load_sensor=False, rate_hz=250.0) for _ in range(2))
+    plain.initialize(0.0, state0)
+    split.initialize(0.0, state0)
+    period = 0.004
+    in_tick = {"plain": 0, "split": 0}
+    prefused = 0
+    j = 0
+    worst = 0.0
+    for t in ticks:
+        while j < len(recs) and recs[j].t <= t - 0.003:
+            plain.push(recs[j])
+            split.push(recs[j])
+            j += 1
+        for name, est in (("plain", plain), ("split", split)):
+            before = est.stats()["accepted"] + sum(v for k, v in est.stats().items() if k.startswith("gated_"))
+            e = est.estimate(t)
+            after = est.stats()["accepted"] + sum(v for k, v in est.stats().items() if k.startswith("gated_"))
+            in_tick[name] += after - before
+            est.push_command(t, V.hover_thrust, (0.0, 0.0, 0.0))
+            if name == "plain":
+                e_plain = e
+            else:
+                worst = max(worst, abs(e.fx[0] - e_plain.fx[0]), abs(e.z - e_plain.z), abs(e.phi - e_plain.phi))
+        # what the next estimate will fuse (its horizon), and what prefuse may fuse of it
+        horizon_next = t + period - split.delay
+        queued = sorted(m[0] for m in split._pending)  # sampling times
+        n = split.prefuse(t + period - 0.0005)
+        prefused += n
+        assert all(s <= horizon_next for s in queued[:n]), (t, queued[:n], horizon_next)
+    sp, ss = plain.stats(), split.stats()
+    assert ss["late_dropped"] == sp["late_dropped"] == 0
+    assert ss["accepted"] == sp["accepted"] and ss["out_of_order"] <= sp["out_of_order"] + 5
+    assert worst < 2e-3, worst  # measured 2.6e-4 / 3.4e-4
+    # every record fused once, either in a tick or between ticks; most of the horizon-fused ones between (measured
+    # 275 / 255 of 314: the rest wait for a newer record of the slower streams)
+    assert in_tick["split"] + prefused == in_tick["plain"], (in_tick, prefused)
+    assert prefused >= 0.75 * (in_tick["plain"] - ss["records_att"]), (prefused, in_tick, ss["records_att"])

@@ -178,6 +178,8 @@ class MeasuredKalmanEstimator(MeasuredPrediction, MeasuredUpdates, RecordFusion)
         self._pending: list[tuple[float, int, Measurement]] = []
         self._pending_att: list[tuple[float, int, Measurement | Gyro]] = []
         self._gated_run = {"pos": 0, "z": 0, "tilt": 0, "psi": 0, "acc": 0, "acc_in": 0, "load": 0, "gyro": 0}
+        self._newest: dict[type, float] = {}  # per kind of horizon-fused record, the newest sampling time pushed
+        self._spacing: dict[type, float] = {}  # per kind, the shortest interval seen between its sampling times
         self._start_records(guess)
         self._initialized = True
 
@@ -200,7 +202,39 @@ class MeasuredKalmanEstimator(MeasuredPrediction, MeasuredUpdates, RecordFusion)
             else:
                 heapq.heappush(self._pending_att, (m.t, self._seq, Gyro(m.t, m.gx, m.gy, m.gz)))
                 self._seq += 1
+        kind = type(m)
+        last = self._newest.get(kind, -math.inf)
+        if m.t > last:
+            if m.t - last < self._spacing.get(kind, math.inf):
+                self._spacing[kind] = m.t - last
+            self._newest[kind] = m.t
         self._enqueue(self._pending, m, self._horizon_floor())
+
+    def prefuse(self, t_next: float) -> int:
+        """Fuse now, between ticks, what ``estimate(t_next)`` would fuse of the position, IMU and cable-angle records
+        already queued: those sampled before ``t_next - delay`` (s) and before the earliest time the next record of
+        any stream still streaming (its newest sample within 0.05 s of the newest of all) can have, its newest
+        sample plus the shortest interval seen between its samples, so that no record still to come, each
+        stream arriving in order, is made late by it. The live loop calls it right after a setpoint has left
+        (with the next tick's time: its own plus a period, less half a millisecond so that a record on the 1 ms
+        grid is never on the cut) and ``slung replay`` at the same place, so the two stay equal; the next
+        estimate then fuses only what arrived since. Attitude records are not touched (``estimate`` fuses them up
+        to its output time). Returns the number of records fused."""
+        newest = self._newest
+        if not (self._initialized and self._pending and newest and math.isfinite(t_next)):
+            return 0
+        top = max(newest.values())
+        spacing = self._spacing
+        cut = t_next - self.delay
+        for kind, t_new in newest.items():
+            if top - t_new <= 0.05:
+                cut = min(cut, t_new + spacing.get(kind, 0.0))
+        pending = self._pending
+        n = 0
+        while pending and pending[0][0] <= cut:
+            self._fuse(heapq.heappop(pending)[2])
+            n += 1
+        return n
 
     def push_command(self, t: float, thrust: float, torque: tuple[float, float, float]) -> None:
         """The command from time ``t`` (s) on: its torques (N m, body FLU) over the inertia, rotated to the world

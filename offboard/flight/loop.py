@@ -850,6 +850,10 @@ class FlightLoop:
         budget = self.horizon_budget_s
         settle_s = cfg.settle_s
         last_est: ControlState | None = None
+        # between ticks the filter fuses what the next tick's estimate would (MeasuredKalmanEstimator.prefuse), off
+        # the path from telemetry to setpoint; slung replay does the same at the same place
+        prefuse = getattr(estimator, "prefuse", None)
+        prefuse_ahead = prefuse_lead(period)
         t_act = t_obs = t_v
         while True:
             t_v = t_obs  # the observation clock of the previous tick (t_v becomes the action time below)
@@ -947,6 +951,8 @@ class FlightLoop:
                     *tr,
                 )
             )
+            if prefuse is not None:  # the setpoint has left: what the next estimate would fuse first, now
+                prefuse(t_v + prefuse_ahead)
             self._check_swing(est)
             last_est = est
             v = self.supervisor.check_tracking(est.fx[0] - rfx[0], est.fy[0] - rfy[0], est.z - rz[0])
@@ -1158,6 +1164,14 @@ class FlightLoop:
             signal.signal(sig, h)
 
 
+def prefuse_lead(period: float) -> float:
+    """How far ahead of a tick's time (s) the filter fuses between ticks (``MeasuredKalmanEstimator.prefuse``): the
+    next tick's time, a period later, less half a millisecond so that no record on the 1 ms grid of ``time_boot_ms``
+    lies on the cut (the live loop and ``slung replay`` then select the same records even if their periods differ
+    in the last bits)."""
+    return period - 0.0005
+
+
 def estimate_ahead(estimator: Estimator, t_act: float) -> ControlState:
     """The estimate at ``t_act`` (s, vehicle time), the time the tick's setpoint will act. The filter's output
     predictor carries its state there with the commands it was given; the filter's fusion horizon was sized for
@@ -1239,4 +1253,5 @@ __all__ = [
     "LoopStats",
     "estimate_ahead",
     "initial_guess",
+    "prefuse_lead",
 ]

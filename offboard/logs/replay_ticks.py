@@ -76,6 +76,7 @@ def replay_ticks(
     from offboard.control.tick import ActuatorLag, ControlTick
     from offboard.flight.command_mapping import CommandMapper, MappingConfig
     from offboard.flight.link.autopilot_model import AutopilotModel
+    from offboard.flight.loop import prefuse_lead
 
     if memo is None:
         memo = {}
@@ -154,6 +155,9 @@ def replay_ticks(
     pushed = 0
     n_t = len(ticks)
     nan4 = (nan,) * 4
+    # the live loop's fusion between ticks, at the same place (after the tick's row) and with the same lead
+    prefuse = getattr(estimator, "prefuse", None)
+    prefuse_ahead = prefuse_lead(1.0 / config.rate_hz)
     for k, tk in enumerate(ticks):
         if progress is not None and k % 2000 == 0:
             progress(k / n_t)
@@ -222,6 +226,8 @@ def replay_ticks(
                     *_row_tail(tk.logged, last_at, offboard, last_att3, estimator),
                 )
             )
+        if prefuse is not None:
+            prefuse(t_v + prefuse_ahead)
     data = as_table(rows, len(columns_for(output)))
     extra: dict[str, Any] = {
         "controller_ran": reference is not None,
