@@ -20,6 +20,11 @@
 Frames: this module works in PX4's body FRD for torques and rates (it is PX4's side of the wire); the caller
 converts to and from the plant's FLU with ``estimators.model.frames``. Units: rad, rad/s; torques normalized (PX4) or
 N m (``Px4Motors.wrench_frd``); motor commands 0..1.
+
+Why over 500 lines: the four stages are one chain that feeds back on itself (the allocator's saturation freezes the
+rate integrator, ``allocate_with_saturation_feedback``) and that three callers assemble from the same parameters
+(``configure_px4_loops``): the emulator's PX4 flavour, ``Px4AttitudePath`` and ``Px4ActuatorPath``. Split, each
+stage's file would import the others' internals.
 """
 
 from __future__ import annotations
