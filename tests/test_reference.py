@@ -38,6 +38,9 @@ def _cases() -> dict[str, Composite]:
         "circle": circle((1.0, 2.0), 0.8, 8.0, 1.5, t_start=1.0, ramp_time=3.0, laps=2),
         "figure_eight": figure_eight((0.0, 0.0), 1.5, 0.75, 20.0, 2.0, t_start=2.0, ramp_time=6.0, laps=1),
         "waypoints": waypoints([(0, 0, 1), (1, 0, 1.2), (2, 1, 1.5, 0.5), (2, 2, 1.0, -0.3), (0, 2, 1)], speed=0.6),
+        "waypoints_velocity": waypoints(
+            [(0, 0, 1), (1, 0, 1.2), (2, 1, 1.5, 0.5), (2, 2, 1.0, -0.3), (0, 2, 1)], speed=0.6, shape="velocity"
+        ),
         "scenario": f8.replace(z=SmoothStep(1.0, 2.0, 0.0, 5.0), psi=SmoothStep(0.0, 0.4, 0.0, 3.0)),
         "sum_shift": Composite(
             fx=Sum(SmoothStep(0, 1, 0, 2), SmoothStep(0, -0.5, 1.5, 2)).shifted(0.5),
@@ -258,6 +261,30 @@ def test_waypoints_pass_through_points_start_and_end_at_rest():
         assert tb - ta == pytest.approx(max(math.dist(a[:3], b[:3]) / 0.6, 1.0))
 
 
+def test_the_velocity_shape_halves_the_peak_speed_and_is_smooth_at_its_midpoint():
+    """``shape = "velocity"``: a segment from rest to rest accelerates over its first half and brakes over its second
+    with the smooth step on the velocity: peak speed twice the mean (the position step: 3.14 times), peak
+    acceleration 0.83 times the position step's, at the end point at rest, and C^7 at the segment's midpoint too,
+    where its two polynomials meet. A segment with a moving end keeps the Hermite piece."""
+    D, T, t0 = 2.0, 4.0, 1.0
+    pos = waypoints([(0, 0, 2), (D, 0, 2)], segment_times=[T], t_start=t0)
+    vel = waypoints([(0, 0, 2), (D, 0, 2)], segment_times=[T], t_start=t0, shape="velocity")
+    ts = np.linspace(t0, t0 + T, 4001)
+    vp = [pos.channels[0].derivatives(float(t), 3) for t in ts]
+    vv = [vel.channels[0].derivatives(float(t), 3) for t in ts]
+    assert max(d[1] for d in vv) == pytest.approx(2.0 * D / T, rel=1e-6)
+    assert max(d[1] for d in vp) == pytest.approx(3.142 * D / T, rel=1e-3)
+    assert max(abs(d[2]) for d in vv) / max(abs(d[2]) for d in vp) == pytest.approx(0.8326, abs=1e-3)
+    end = vel.channels[0].derivatives(t0 + T, 8)
+    assert end[0] == pytest.approx(D, abs=1e-12) and max(abs(v) for v in end[1:]) < 1e-9
+    for j, jump, tol in _jumps(vel.channels[0], t0 + 0.5 * T, 0.05):
+        assert jump <= tol, f"derivative {j} jumps by {jump:.3g} at the midpoint"
+    # an interior waypoint with a non-zero slope: the same Hermite piece whatever the shape
+    a = waypoints([(0, 0, 1), (1, 0, 1), (2, 0, 1)], speed=0.5, shape="velocity").channels[0]
+    b = waypoints([(0, 0, 1), (1, 0, 1), (2, 0, 1)], speed=0.5).channels[0]
+    assert a.derivatives(1.3, 7) == b.derivatives(1.3, 7)
+
+
 def test_waypoints_do_not_stop_on_a_straight_line():
     """Equally spaced collinear points: the path keeps moving through interior points, exactly at the chord speed
     on the interior segment (the degree-15 Hermite piece reproduces a straight line)."""
@@ -450,6 +477,7 @@ def test_trajectory_file_patterns(tmp_path):
         ('kind = "circle"\ncenter = [0, 0]\nradius = 1\nperiod = -5\nz = 1\n', "period"),
         ('kind = "figure_eight"\ncenter = [0, 0]\nsize_x = 1\nperiod = 5\nz = 1\n', "missing 'size_y'"),
         ('kind = "hover"\nx = 1\ny = 2\nz = 3\npsi = 0\npsi_deg = 0\n', "not both"),
+        ('shape = "jerk"\nspeed = 1.0\n[[waypoint]]\nx=0\ny=0\nz=1\n', "shape must be one of position, velocity"),
     ],
 )
 def test_bad_trajectory_files_raise_one_line_user_errors(tmp_path, text, match):

@@ -24,7 +24,13 @@ from offboard.control.reference import (
     _finite,
     _positive,
 )
-from offboard.control.smooth_step import H0, H1, STEP, mirrored, scaled
+from offboard.control.smooth_step import H0, H1, STEP, VELOCITY_STEP_HALF, mirrored, scaled
+
+#: how a waypoint segment that starts and ends at rest (in its channel) moves: ``position`` the degree-15 smooth step
+#: on the position (the default), ``velocity`` the smooth step on the velocity (it accelerates over the first half and
+#: brakes over the second: peak speed twice the mean instead of 3.14 times, peak acceleration 0.83 times;
+#: ``smooth_step.VELOCITY_STEP_HALF``)
+SHAPES = ("position", "velocity")
 
 
 class HermiteSpline(Scalar):
@@ -32,9 +38,15 @@ class HermiteSpline(Scalar):
 
     At every knot the value and slope are as given and derivatives 2..7 are zero, so the curve is C^7. Before
     the first and after the last knot the end values are held (C^7 there too when the end slopes are zero).
+    ``shape`` (:data:`SHAPES`) ``velocity``: a segment with both slopes zero follows the velocity step instead (degree
+    16, C^8, also at its midpoint).
     """
 
-    def __init__(self, times: Sequence[float], values: Sequence[float], slopes: Sequence[float]) -> None:
+    def __init__(
+        self, times: Sequence[float], values: Sequence[float], slopes: Sequence[float], shape: str = "position"
+    ) -> None:
+        if shape not in SHAPES:
+            raise TrajectoryError(f"shape must be one of {', '.join(SHAPES)}, got {shape!r}")
         if not (len(times) == len(values) == len(slopes)) or len(times) < 2:
             raise TrajectoryError("a Hermite spline needs at least 2 knots with one value and slope each")
         self.times = tuple(_finite("knot time", x) for x in times)
@@ -52,6 +64,15 @@ class HermiteSpline(Scalar):
             dp = self.values[i + 1] - self.values[i]
             m0 = self.slopes[i] * T
             m1 = self.slopes[i + 1] * T
+            if shape == "velocity" and m0 == 0.0 and m1 == 0.0:
+                # p(x) = p0 + dp G(x) on [0, 1/2], p = p1 - dp G(y) in y = 1 - x on [0, 1/2]
+                gc = VELOCITY_STEP_HALF.coefficients
+                left = [dp * a for a in gc]
+                left[0] += self.values[i]
+                right = [-dp * a for a in gc]
+                right[0] += self.values[i + 1]
+                self._pieces.append((self.times[i], 1.0 / T, PolynomialTaylor(left), PolynomialTaylor(right)))
+                continue
             # p(x) = p0 + dp S(x) + m0 h0(x) + m1 h1(x)
             left = [dp * a + m0 * b + m1 * d for a, b, d in zip(sc, h0c, h1c)]
             left[0] += self.values[i]
@@ -223,6 +244,7 @@ def waypoints(
     t_start: float = 0.0,
     yaw_rate: float = 0.5,
     min_segment_time: float = 1.0,
+    shape: str = "position",
 ) -> Composite:
     """A C^7 path through ``points`` (x, y, z[, psi]) (m, m, m, rad), at rest at the first and last point.
 
@@ -231,7 +253,9 @@ def waypoints(
     ``t_start``. Per channel, a degree-15 Hermite piece joins consecutive points. The path does not stop at interior
     waypoints: the slope there is the centred difference, zero where that channel has a local extremum, limited to
     1.4 times the smaller neighbouring secant so monotone data give a monotone path. Derivatives 2..7 vanish at each
-    waypoint, so the path is C^7. psi is taken literally (no angle wrapping). One point: hover there.
+    waypoint, so the path is C^7. psi is taken literally (no angle wrapping). One point: hover there. ``shape``
+    (:data:`SHAPES`): how a segment that starts and ends at rest in a channel moves (``velocity``: accelerate over its
+    first half, brake over its second, the lower peak speed and acceleration).
     """
     if isinstance(points, (str, bytes)):
         raise TrajectoryError(f"waypoints: expected a sequence of (x, y, z[, psi]), got {points!r}")
@@ -272,8 +296,8 @@ def waypoints(
         if all(x == vals[0] for x in vals):
             chans.append(Constant(vals[0]))
         else:
-            chans.append(HermiteSpline(times, vals, _knot_slopes(times, vals)))
+            chans.append(HermiteSpline(times, vals, _knot_slopes(times, vals), shape))
     return Composite(*chans, duration=times[-1])
 
 
-__all__ = ["SLOPE_LIMIT", "HermiteSpline", "circle", "figure_eight", "hover", "rest_to_rest", "waypoints"]
+__all__ = ["SHAPES", "SLOPE_LIMIT", "HermiteSpline", "circle", "figure_eight", "hover", "rest_to_rest", "waypoints"]

@@ -10,7 +10,7 @@ import math
 from pathlib import Path
 
 from offboard.control.reference import Composite, TrajectoryError, _finite
-from offboard.control.reference_patterns import circle, figure_eight, hover, waypoints
+from offboard.control.reference_patterns import SHAPES, circle, figure_eight, hover, waypoints
 
 try:
     import tomllib
@@ -23,7 +23,7 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 # --------------------------------------------------------------------------------------------------------------
 _KINDS = ("waypoints", "hover", "circle", "figure_eight")
 _KEYS = {
-    "waypoints": {"kind", "t_start", "speed", "segment_times", "yaw_rate", "min_segment_time", "waypoint"},
+    "waypoints": {"kind", "t_start", "speed", "segment_times", "yaw_rate", "min_segment_time", "shape", "waypoint"},
     "hover": {"kind", "x", "y", "z", "psi", "psi_deg"},
     "circle": {"kind", "center", "radius", "period", "z", "t_start", "ramp_time", "laps", "psi", "psi_deg"},
     "figure_eight": {
@@ -63,7 +63,7 @@ def _reference_from_table(data: dict, where: str) -> Composite:
     unknown = sorted(set(data) - _KEYS[kind])
     if unknown:
         raise TrajectoryError(f"{where}: unknown key(s) for kind '{kind}': {', '.join(unknown)}")
-    num = {k: v for k, v in data.items() if k not in ("kind", "waypoint", "center", "segment_times")}
+    num = {k: v for k, v in data.items() if k not in ("kind", "waypoint", "center", "segment_times", "shape")}
     for k, v in num.items():
         if k != "laps":
             _finite(f"{where}: {k}", v)
@@ -87,6 +87,9 @@ def _reference_from_table(data: dict, where: str) -> Composite:
             return figure_eight(center, _need(where, data, "size_x"), _need(where, data, "size_y"), **common)
         except TrajectoryError as exc:
             raise TrajectoryError(f"{where}: {exc}") from None
+    shape = data.get("shape", "position")
+    if shape not in SHAPES:
+        raise TrajectoryError(f"{where}: shape must be one of {', '.join(SHAPES)}, got {shape!r}")
     wps = data.get("waypoint")
     if not isinstance(wps, list) or not wps:
         raise TrajectoryError(f"{where}: no [[waypoint]] entries")
@@ -119,7 +122,7 @@ def _reference_from_table(data: dict, where: str) -> Composite:
             for i, d in enumerate(seg):
                 if not d > 0.0:
                     raise TrajectoryError(f"waypoint times must increase (waypoint {i + 2} at t = {times[i + 1]!r} s)")
-            return waypoints(pts, segment_times=seg or None, t_start=times[0]) if seg else hover(*pts[0])
+            return waypoints(pts, segment_times=seg, t_start=times[0], shape=shape) if seg else hover(*pts[0])
         seg_times = data.get("segment_times")
         if seg_times is not None and not isinstance(seg_times, list):
             raise TrajectoryError(f"segment_times must be a list of seconds, got {seg_times!r}")
@@ -130,6 +133,7 @@ def _reference_from_table(data: dict, where: str) -> Composite:
             t_start=data.get("t_start", 0.0),
             yaw_rate=data.get("yaw_rate", 0.5),
             min_segment_time=data.get("min_segment_time", 1.0),
+            shape=shape,
         )
     except TrajectoryError as exc:
         msg = str(exc)
