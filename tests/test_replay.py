@@ -13,6 +13,7 @@ import pytest
 from tlog_fixtures import LogSpec, flight_log, offboard_log, write_live_table
 
 from offboard.cli import main
+from offboard.control.boundary_layers import FLIGHT_LAYER_ERRORS
 from offboard.flight.fly_cli import configure as fly_configure
 from offboard.flight.fly_cli import fly
 from offboard.harness.demo_cli import EmulatorThread, free_udp_port
@@ -133,6 +134,10 @@ def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
         assert np.isfinite(nu).any() and np.isfinite(nu[int(np.argmax(np.isfinite(nu))) :]).all(), stream
     assert m["live_agreement"]["estimate_identical"] == n
     assert m["live_agreement"]["setpoint_identical"] == n
+    # the run flew the torque-level law with its per-loop boundary layers (docs/model.md C-12), and the replay
+    # rebuilt the law with them: one epsilon for all loops would be another law, and other setpoints
+    assert json.loads((run / "metrics.json").read_text())["config"]["layer_errors"] == list(FLIGHT_LAYER_ERRORS)
+    assert m["config"]["layer_errors"] == list(FLIGHT_LAYER_ERRORS)
     # what went over the wire (float32) is what the replay recomputes, rounded to float32
     assert m["setpoint_agreement"]["float32_identical"] == m["setpoint_agreement"]["ticks_compared"] == n
     assert m["log"]["has_offboard_segment"] and m["log"]["autopilot"] == flavor

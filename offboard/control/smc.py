@@ -49,6 +49,7 @@ from estimators.model.flatness import FlatConstants, flat_constants
 from estimators.model.frames import wrap_angle
 from estimators.model.rotations import thrust_direction_trig
 from estimators.model.vehicle import Vehicle
+from offboard.control.boundary_layers import error_boundary_layers
 
 
 @dataclass(frozen=True)
@@ -117,6 +118,9 @@ class ControllerParams:
 
     switching: ``"sign"`` (the paper's sign(.)) or ``"smooth"`` (v / (|v| + epsilon), eq. (92)).
     epsilon: smoothing width of (92), in the units of each surface (the paper uses 1 for all loops).
+    layer_errors: with smooth switching, each loop's own width instead of ``epsilon``: the value of its sliding
+    variable for a tracking error of (height m, heading rad, horizontal m) alone, :func:`error_boundary_layers`
+    of these gains (so that it follows a gain scaling); None (the default): ``epsilon`` for all three, as the paper.
     thrust_min, thrust_max: collective thrust limits, N; torque_max: (roll, pitch, yaw) limits, N m.
     max_tilt: largest tilt (rad) for which the height law divides by g_z; beyond it g_z is held at its value
     there, so that thrust stays bounded.
@@ -143,14 +147,26 @@ class ControllerParams:
     max_tilt: float = 1.2
     actuation_lag_s: float = 0.0
     shared_roll_pitch: bool = False
+    layer_errors: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.switching not in ("sign", "smooth"):
             raise ValueError(f"switching must be 'sign' or 'smooth', got {self.switching!r}")
         if not (self.epsilon > 0.0 and math.isfinite(self.epsilon)):
             raise ValueError(f"epsilon must be a finite number > 0, got {self.epsilon!r}")
+        if self.layer_errors is not None and not (
+            len(self.layer_errors) == 3 and all(e > 0.0 and math.isfinite(e) for e in self.layer_errors)
+        ):
+            raise ValueError(f"layer_errors must be three finite numbers > 0, got {self.layer_errors!r}")
         if not (self.actuation_lag_s >= 0.0 and math.isfinite(self.actuation_lag_s)):
             raise ValueError(f"actuation_lag_s must be a finite number >= 0, got {self.actuation_lag_s!r}")
+
+    def layers(self) -> tuple[float, float, float]:
+        """(height m/s, heading rad/s, horizontal m/s^5) widths of the smooth switching: from ``layer_errors``
+        (:func:`error_boundary_layers`), else ``epsilon`` for all three."""
+        if self.layer_errors is None:
+            return (self.epsilon,) * 3
+        return error_boundary_layers(self.gains, self.layer_errors)
 
     @classmethod
     def for_vehicle(cls, vehicle: Vehicle, gains: Gains | None = None, **kwargs: object) -> ControllerParams:
@@ -225,6 +241,7 @@ class _Derived(NamedTuple):
     I_theta: float
     I_psi: float
     cos_max_tilt: float
+    layers: tuple[float, float, float]
 
 
 P = TypeVar("P")
@@ -258,7 +275,15 @@ def switching(s: float, eps: float, smooth: bool) -> float:
 @per_params
 def _derived(params: ControllerParams) -> _Derived:
     v = params.vehicle
-    return _Derived(flat_constants(v), v.mass_vehicle, v.mass_load, v.total_mass, *v.inertia, math.cos(params.max_tilt))
+    return _Derived(
+        flat_constants(v),
+        v.mass_vehicle,
+        v.mass_load,
+        v.total_mass,
+        *v.inertia,
+        math.cos(params.max_tilt),
+        params.layers(),
+    )
 
 
 @per_params
@@ -322,7 +347,7 @@ def step(
     G = params.gains
     dt = 0.0 if memory.t is None else max(0.0, t - memory.t)
     smooth = params.switching == "smooth"
-    eps = params.epsilon
+    eps_z, eps_psi, eps_f = d.layers
 
     # ---- height -------------------------------------------------------------------------------------
     phi, theta, psi = est.phi, est.theta, est.psi
@@ -339,7 +364,7 @@ def step(
     e_zd = est.z_rate - ref_z[1]
     int_z = memory.int_z + e_z * dt
     s_z = e_zd + G.lambda1 * e_z + G.lambda0 * int_z
-    sw_z = switching(s_z, eps, smooth)
+    sw_z = switching(s_z, eps_z, smooth)
     thrust = (ref_z[2] - f_z - G.lambda1 * e_zd - G.lambda0 * e_z - G.rho_z * sw_z) / max(g_z, 1e-3)
 
     # ---- yaw ----------------------------------------------------------------------------------------
@@ -347,7 +372,7 @@ def step(
     e_psid = est.psi_rate - ref_psi[1]
     int_psi = memory.int_psi + e_psi * dt
     s_psi = e_psid + G.gamma1 * e_psi + G.gamma0 * int_psi
-    sw_psi = switching(s_psi, eps, smooth)
+    sw_psi = switching(s_psi, eps_psi, smooth)
     tau_psi = d.I_psi * (ref_psi[2] - G.gamma1 * e_psid - G.gamma0 * e_psi - G.rho_psi * sw_psi)
 
     # ---- horizontal: commanded F^(6) per world axis ----------------------------------------------------
@@ -375,7 +400,7 @@ def step(
     int_fy = memory.int_fy + ey0 * dt
     sigma_x = ex5 + K5 * ex4 + K4 * ex3 + K3 * ex2 + K2 * ex1 + K1 * ex0 + K0 * int_fx
     sigma_y = ey5 + K5 * ey4 + K4 * ey3 + K3 * ey2 + K2 * ey1 + K1 * ey0 + K0 * int_fy
-    sw_x, sw_y = switching(sigma_x, eps, smooth), switching(sigma_y, eps, smooth)
+    sw_x, sw_y = switching(sigma_x, eps_f, smooth), switching(sigma_y, eps_f, smooth)
     rho_F = G.rho_F
     vx = ref_fx[6] - K5 * ex5 - K4 * ex4 - K3 * ex3 - K2 * ex2 - K1 * ex1 - K0 * ex0 - rho_F * sw_x
     vy = ref_fy[6] - K5 * ey5 - K4 * ey4 - K3 * ey3 - K2 * ey2 - K1 * ey1 - K0 * ey0 - rho_F * sw_y

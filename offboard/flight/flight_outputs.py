@@ -224,7 +224,15 @@ def write_flight_outputs(
         {
             "law": getattr(args, "law", None),
             "switching": args.switching,
-            "epsilon": args.epsilon if args.switching == "smooth" and getattr(args, "law", None) == "torque" else None,
+            "epsilon": (
+                args.epsilon
+                if args.switching == "smooth"
+                and getattr(args, "law", None) == "torque"
+                and not getattr(args, "layer_errors", None)
+                else None
+            ),
+            # the torque-level law's per-loop boundary layers (smc.error_boundary_layers; replay applies them)
+            "layer_errors": getattr(args, "layer_errors", None) if getattr(args, "law", None) == "torque" else None,
             # the torque-level law's pole scale for the measured loop delay (offboard.control.delay_margin; replay
             # applies it)
             "gain_scale": result.gain_scale,

@@ -79,14 +79,17 @@ def add_flight_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None
     """Options shared by ``fly`` and ``demo``."""
     add_controller_arguments(p)
     add_feedforward_argument(p)
-    p.set_defaults(switching=None)  # resolved per law in fly(): smooth for the attitude law, sign for the torque law
+    # resolved per law in fly(): smooth switching for both laws, each loop's boundary layer from its gains unless
+    # --epsilon gives the paper's one width for all (torque law)
+    p.set_defaults(switching=None, epsilon=None)
     p.add_argument(
         "--law",
         choices=("auto", *values(Law)),
         default="auto",
         help="controller: attitude = the sliding-mode law on attitude and thrust, for an autopilot that runs its own "
         "attitude loops (smooth switching by default, each loop's boundary layer from its gains, --epsilon unused); "
-        "torque = the paper's torque-level law (sign switching by default; needed for --output actuator); auto "
+        "torque = the paper's torque-level law (needed for --output actuator; smooth switching by default, each "
+        "loop's boundary layer the sliding variable of a 2 cm / 0.02 rad error, or --epsilon for all); auto "
         "(default): attitude with --output attitude when robust gains exist for the vehicle behind PX4's default "
         "attitude loop, else torque (a load swinging faster than that loop, e.g. the paper's vehicle)",
     )

@@ -29,6 +29,7 @@ from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle, load_vehicle
 from offboard.cli_args import feedforward_tuning
 from offboard.control import smc, smc_attitude
+from offboard.control.boundary_layers import FLIGHT_LAYER_ERRORS
 from offboard.flight.attitude_mapping import AttitudeLawMapper
 from offboard.flight.command_mapping import CommandMapper, MappingConfig
 from offboard.flight.flight_outputs import write_flight_outputs
@@ -198,9 +199,7 @@ def fly(
     law = args.law
     if law == "attitude" and args.output == "actuator":
         raise UserError("--law attitude commands attitude and thrust: use --output attitude, or --law torque")
-    if getattr(args, "switching", None) is None:
-        args.switching = "smooth" if law == "attitude" else "sign"
-    torque_params = torque_law_params(vehicle, args.switching, args.epsilon)
+    torque_params = resolve_switching(args, law, vehicle)
     args.shared_roll_pitch = torque_params.shared_roll_pitch and law == "torque"  # recorded for slung replay
     mapping = MappingConfig(output=args.output, mask=args.mask or default_mask(None))
     params: Any = torque_params
@@ -370,14 +369,35 @@ def write_refusal_events(out_dir: Path, loop: FlightLoop, exc: UserError) -> Non
     )
 
 
-def torque_law_params(vehicle: Vehicle, switching: str, epsilon: float) -> smc.ControllerParams:
+def resolve_switching(args: argparse.Namespace, law: str, vehicle: Vehicle) -> smc.ControllerParams:
+    """``--switching`` / ``--epsilon`` for the flight's law, written back into ``args`` (recorded for replay, with
+    ``args.layer_errors``), and the torque-level law's parameters. Default: smooth switching for both laws; the
+    torque-level law's with each loop's own boundary layer (``boundary_layers.error_boundary_layers``) unless
+    ``--epsilon`` gives the paper's one width for all. The paper's sign(.) chattered the roll / pitch torque on the
+    filter's noise, into the torque limits under the paper's disturbances, and swung the load up in 4 of 14 seeds
+    of ``slung demo`` (1 of 14 with the layers; docs/model.md C-12)."""
+    if getattr(args, "switching", None) is None:
+        args.switching = "smooth"
+    layered = args.switching == "smooth" and getattr(args, "epsilon", None) is None and law == "torque"
+    args.layer_errors = list(FLIGHT_LAYER_ERRORS) if layered else None
+    if getattr(args, "epsilon", None) is None:
+        args.epsilon = 1.0
+    return torque_law_params(vehicle, args.switching, args.epsilon, layered)
+
+
+def torque_law_params(vehicle: Vehicle, switching: str, epsilon: float, layered: bool = False) -> smc.ControllerParams:
     """The torque-level law a flight uses: the paper's, with the vehicle's limits, and on an X frame the roll and
     pitch torques limited together (``shared_roll_pitch``): every motor takes part in both, so a pair at the corner
     of the per-axis box is one the motors cannot give, and PX4's allocator (sequential desaturation, roll before
     pitch) then cut the roll torque alone; at 30 % packet loss that swung the load up in world y, the roll axis, in
-    12-16 of 64 hovers (3-4 with this limit; docs/estimation.md section 0.3)."""
+    12-16 of 64 hovers (3-4 with this limit; docs/estimation.md section 0.3). ``layered``: each loop's own
+    boundary layer (``boundary_layers.FLIGHT_LAYER_ERRORS``) instead of ``epsilon`` for the smooth switching."""
     return smc.ControllerParams.for_vehicle(
-        vehicle, switching=switching, epsilon=epsilon, shared_roll_pitch=vehicle.frame == "x"
+        vehicle,
+        switching=switching,
+        epsilon=epsilon,
+        shared_roll_pitch=vehicle.frame == "x",
+        layer_errors=FLIGHT_LAYER_ERRORS if layered else None,
     )
 
 

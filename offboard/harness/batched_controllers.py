@@ -38,7 +38,7 @@ def smc_step(
     k = flat_constants(v)
     G = params.gains
     smooth = params.switching == "smooth"
-    eps = params.epsilon
+    eps_z, eps_psi, eps_f = params.layers()
     M, m, Mt = v.mass_vehicle, v.mass_load, v.total_mass
     Ip, It, Is = v.inertia
     cos_max = math.cos(params.max_tilt)
@@ -62,7 +62,7 @@ def smc_step(
     e_zd = est["z_rate"] - rz[1]
     int_z = memory[0] + e_z * dt
     s_z = e_zd + G.lambda1 * e_z + G.lambda0 * int_z
-    thrust = (rz[2] - f_z - G.lambda1 * e_zd - G.lambda0 * e_z - G.rho_z * _sw(s_z, smooth, eps)) / np.maximum(
+    thrust = (rz[2] - f_z - G.lambda1 * e_zd - G.lambda0 * e_z - G.rho_z * _sw(s_z, smooth, eps_z)) / np.maximum(
         g_z, 1e-3
     )
     two_pi = 2.0 * math.pi
@@ -71,7 +71,7 @@ def smc_step(
     e_psid = est["psi_rate"] - rpsi[1]
     int_psi = memory[1] + e_psi * dt
     s_psi = e_psid + G.gamma1 * e_psi + G.gamma0 * int_psi
-    tau_psi = Is * (rpsi[2] - G.gamma1 * e_psid - G.gamma0 * e_psi - G.rho_psi * _sw(s_psi, smooth, eps))
+    tau_psi = Is * (rpsi[2] - G.gamma1 * e_psid - G.gamma0 * e_psi - G.rho_psi * _sw(s_psi, smooth, eps_psi))
     K0, K1, K2, K3, K4, K5 = G.K
     fx, fy = est["fx"], est["fy"]
     ex = [fx[i] - rfx[i] for i in range(6)]
@@ -88,7 +88,7 @@ def smc_step(
         - K2 * ex[2]
         - K1 * ex[1]
         - K0 * ex[0]
-        - G.rho_F * _sw(sig_x, smooth, eps)
+        - G.rho_F * _sw(sig_x, smooth, eps_f)
     )
     vy = (
         rfy[6]
@@ -98,7 +98,7 @@ def smc_step(
         - K2 * ey[2]
         - K1 * ey[1]
         - K0 * ey[0]
-        - G.rho_F * _sw(sig_y, smooth, eps)
+        - G.rho_F * _sw(sig_y, smooth, eps_f)
     )
     nddx = (vx + k.omega2 * fx[4]) / k.c
     nddy = (vy + k.omega2 * fy[4]) / k.c

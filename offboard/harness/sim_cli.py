@@ -24,6 +24,7 @@ from offboard.cli_args import (
     positive_float,
 )
 from offboard.control import smc
+from offboard.control.boundary_layers import FLIGHT_LAYER_ERRORS
 from offboard.control.scenarios import SCENARIOS, make_scenario
 from offboard.harness import sim as sim_mod
 from offboard.logs.runlog import PlantSetup, Scenario
@@ -84,6 +85,12 @@ def configure(p: argparse.ArgumentParser) -> None:
         "the vehicle's X mixer with motor limits and lag (roll / pitch priority); px4: through PX4's control "
         "allocator (sequential desaturation, airmode off) and motors, what --output actuator meets on PX4",
     )
+    p.add_argument(
+        "--layers",
+        action="store_true",
+        help="with --switching smooth: each loop's boundary layer scaled to its own sliding variable (the sliding "
+        "variable of a 2 cm / 0.02 rad error), as slung fly's torque-level law flies by default, instead of --epsilon",
+    )
     add_no_figures_argument(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if needed)")
 
@@ -119,14 +126,20 @@ def run_cli(args: argparse.Namespace) -> dict[str, Any]:
         seed=args.seed,
         actuators=args.actuators,
     )
-    params = smc.ControllerParams.for_vehicle(vehicle, switching=args.switching, epsilon=args.epsilon)
+    if args.layers and args.switching != "smooth":
+        raise UserError("--layers sets the boundary layers of --switching smooth: add --switching smooth")
+    layer_errors = FLIGHT_LAYER_ERRORS if args.layers else None
+    params = smc.ControllerParams.for_vehicle(
+        vehicle, switching=args.switching, epsilon=args.epsilon, layer_errors=layer_errors
+    )
     _print_feasibility(scenario, vehicle, params)
     progress = _progress_printer() if sys.stderr.isatty() else None
     log = sim_mod.run(scenario, vehicle, params, config, progress=progress, tuning=tuning)
     m = metrics_mod.compute(log)
     m["config"]["external_feedforward"] = tuning is not None
     m["config"]["switching"] = args.switching
-    m["config"]["epsilon"] = args.epsilon if args.switching == "smooth" else None
+    m["config"]["epsilon"] = args.epsilon if args.switching == "smooth" and not args.layers else None
+    m["config"]["layer_errors"] = list(layer_errors) if layer_errors else None
     report.write_report(log, m, out_dir, figures=not args.no_figures, command="sim")
     print(f"scenario {scenario.name}: {scenario.description}")
     print(metrics_mod.format_table(m))

@@ -170,6 +170,10 @@ def build_config(args: argparse.Namespace, meta: dict[str, Any], live: Any = Non
     # the live run's filter fed the external acceleration forward (--external-feedforward)
     if cfg.get("external_feedforward") is True:
         extra["external_feedforward"] = True
+    # the live run's per-loop boundary layers (runs recorded before them used epsilon for all loops)
+    layers = cfg.get("layer_errors")
+    if switching == "smooth" and isinstance(layers, list) and len(layers) == 3:
+        extra["layer_errors"] = tuple(float(e) for e in layers)
     return ReplayConfig(
         vehicle=vehicle,
         t_from=args.t_from,

@@ -135,6 +135,7 @@ class ReplayConfig:
     reference: ReferenceSpec | None = None
     switching: str = "smooth"
     epsilon: float = 1.0
+    layer_errors: tuple[float, float, float] | None = None
     law: str = "torque"
     gain_scale: float = 1.0
     shared_roll_pitch: bool = False

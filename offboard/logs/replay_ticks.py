@@ -108,7 +108,11 @@ def replay_ticks(
         if config.live is None and math.isfinite(config.reference.start):
             t_shift = math.nan  # controller time from the given start: t_ref = t_v - start
     params = smc.ControllerParams.for_vehicle(
-        vehicle, switching=config.switching, epsilon=config.epsilon, shared_roll_pitch=config.shared_roll_pitch
+        vehicle,
+        switching=config.switching,
+        epsilon=config.epsilon,
+        shared_roll_pitch=config.shared_roll_pitch,
+        layer_errors=config.layer_errors,
     )
     if config.gain_scale != 1.0:  # as the live loop scheduled them (FlightLoop._schedule_gains)
         params = replace(params, gains=params.gains.scaled(config.gain_scale))

@@ -34,9 +34,12 @@ def run_title(command: str, log: SimLog, metrics: dict[str, Any]) -> str:
     parts.append("controller on the true state" if est == "truth" else f"{est} estimator")
     sw = cfg.get("switching")
     if sw:
-        parts.append(
-            f"{sw} switching" + (f" (ε = {cfg['epsilon']:g})" if sw == "smooth" and cfg.get("epsilon") else "")
-        )
+        detail = ""
+        if sw == "smooth" and cfg.get("layer_errors"):
+            detail = " (per-loop boundary layers)"  # docs/model.md C-12
+        elif sw == "smooth" and cfg.get("epsilon"):
+            detail = f" (ε = {cfg['epsilon']:g})"
+        parts.append(f"{sw} switching{detail}")
     return f"slung {command}: " + ", ".join(parts)
 
 
