@@ -121,6 +121,37 @@ def test_demo_on_a_terminal_shows_the_phases_and_a_refreshed_status_line(demo_tt
     assert "\x1b[K" in control  # each redraw clears the rest of the old line
 
 
+def test_an_open_status_keeps_the_loop_s_events_off_the_log_unless_asked(caplog: pytest.LogCaptureFixture) -> None:
+    """Every loop event is a status line ("[control] swing_limit: ..."); the same words as a WARNING log record
+    printed them twice. While a status is open the loop's records stay off the log, errors excepted, and with the
+    log at INFO (-v) they are all kept; once it closes the log is as before."""
+    import io
+    import logging
+
+    from offboard.flight.status import FlightStatus
+
+    loop_log = logging.getLogger("offboard.flight.loop")
+    other = logging.getLogger("offboard.flight.link.management")
+    caplog.set_level(logging.WARNING)
+    status = FlightStatus(io.StringIO(), tty=False)
+    try:
+        loop_log.warning("swing_limit: shown by the status")
+        loop_log.error("an error is kept")
+        other.warning("another module's warning is kept")
+        with caplog.at_level(logging.INFO, logger="offboard.flight.loop"):
+            loop_log.warning("kept with -v")
+    finally:
+        status.close()
+    loop_log.warning("kept once the status is closed")
+    got = [r.getMessage() for r in caplog.records]
+    assert got == [
+        "an error is kept",
+        "another module's warning is kept",
+        "kept with -v",
+        "kept once the status is closed",
+    ], got
+
+
 @pytest.mark.slow
 def test_demo_through_a_pipe_prints_plain_lines_and_one_report_line(demo_piped) -> None:
     err, out = demo_piped["stderr"], demo_piped["stdout"]

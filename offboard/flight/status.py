@@ -9,17 +9,31 @@ place (carriage return); when the stream is not a terminal (a pipe, a file, CI) 
 the status is a plain line every ``plain_every_s`` (5 s). Everything goes to stderr: stdout keeps the results.
 
 Phases are read from what the loop and its vehicle management record anyway (``FlightLoop.events``,
-``Manager.events``), so a phase shows up here with the same words as in ``events.json``.
+``Manager.events``), so a phase shows up here with the same words as in ``events.json``. While a status is open,
+the loop's own log records (``offboard.flight.loop``: every event, at INFO or WARNING) are therefore not printed a
+second time by the default log handler, unless ``-v`` asked for the log (the logger's level at INFO or below).
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import sys
 import threading
 import time
 from typing import Any, TextIO
+
+#: the logger whose every record is also a loop event that the status prints (offboard.flight.loop.FlightLoop.event)
+_LOOP_LOGGER = "offboard.flight.loop"
+
+
+class _ShownByStatus(logging.Filter):
+    """Drops the loop's records while the status shows them as events, unless the log was asked for (-v)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.levelno >= logging.ERROR or logging.getLogger(_LOOP_LOGGER).getEffectiveLevel() <= logging.INFO
+
 
 #: management event kind -> phase it starts (``offboard.flight.link.management.Manager.note``)
 _MANAGEMENT_PHASES = {"arm": "arming", "takeoff": "take-off", "takeoff_done": "take-off"}
@@ -52,6 +66,8 @@ class FlightStatus:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="slung-status", daemon=True)
+        self._filter = _ShownByStatus()
+        logging.getLogger(_LOOP_LOGGER).addFilter(self._filter)
         self._thread.start()
 
     # -------------------------------------------------------------------------------------------- API ---
@@ -68,6 +84,7 @@ class FlightStatus:
         """Stop the thread (after one last poll, so that the hand-over is shown) and end the status line."""
         self._stop.set()
         self._thread.join(timeout=2.0)
+        logging.getLogger(_LOOP_LOGGER).removeFilter(self._filter)
         with self._lock, contextlib.suppress(OSError, ValueError):  # a closed stderr must not lose the report
             self._poll_events()
             self._end_line()
