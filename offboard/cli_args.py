@@ -52,20 +52,29 @@ def non_negative_int(text: str) -> int:
     return v
 
 
-def add_controller_arguments(p: argparse.ArgumentParser) -> None:
-    """Controller options shared by ``sim``, ``fly``, ``demo`` and ``replay``."""
+def add_controller_arguments(p: argparse.ArgumentParser, flight: bool = False) -> None:
+    """Controller options shared by ``sim``, ``fly``, ``demo`` and ``replay``; ``flight``: the defaults of ``fly``
+    and ``demo`` (smooth switching, each loop's own boundary layer; resolved per law in ``fly_cli.resolve_switching``)
+    instead of the paper's."""
     p.add_argument(
         "--switching",
         choices=values(Switching),
-        default="sign",
-        help="switching function: the paper's sign(.) or v/(|v|+eps) of eq. (92) (default: sign)",
+        default=None if flight else "sign",
+        help="switching function: the paper's sign(.) or v/(|v|+eps) of eq. (92) (default: "
+        + ("smooth" if flight else "sign")
+        + ")",
     )
     p.add_argument(
         "--epsilon",
         type=positive_float,
-        default=1.0,
+        default=None if flight else 1.0,
         metavar="E",
-        help="smoothing width of eq. (92) for --switching smooth (default: 1, the paper's)",
+        help=(
+            "one smoothing width of eq. (92) for every loop of the torque-level law (default: each loop's own "
+            "boundary layer, the sliding variable of a 2 cm / 0.02 rad error; the paper used 1)"
+            if flight
+            else "smoothing width of eq. (92) for --switching smooth (default: 1, the paper's)"
+        ),
     )
     p.add_argument(
         "--vehicle",

@@ -77,11 +77,10 @@ def add_reference_arguments(p: argparse.ArgumentParser) -> None:
 
 def add_flight_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
     """Options shared by ``fly`` and ``demo``."""
-    add_controller_arguments(p)
+    # --switching / --epsilon resolved per law in fly() (fly_cli.resolve_switching): smooth switching for both laws,
+    # each loop's boundary layer from its gains unless --epsilon gives the paper's one width for all (torque law)
+    add_controller_arguments(p, flight=True)
     add_feedforward_argument(p)
-    # resolved per law in fly(): smooth switching for both laws, each loop's boundary layer from its gains unless
-    # --epsilon gives the paper's one width for all (torque law)
-    p.set_defaults(switching=None, epsilon=None)
     p.add_argument(
         "--law",
         choices=("auto", *values(Law)),
