@@ -1,7 +1,7 @@
 """The torque-level law's per-loop boundary layers (``boundary_layers.error_boundary_layers``, docs/model.md
 C-12): each loop's smooth switching width is the value its own sliding variable takes for a small tracking error,
-it follows a gain scaling, each loop gets its own width (not another loop's), the batched law agrees, and flights
-use it by default and record it for replay."""
+it follows a gain scaling, each loop gets its own width (not another loop's), and flights use it by default (the
+batched law: tests/test_roll_pitch_margin.py; the record for replay: tests/test_replay.py)."""
 
 from __future__ import annotations
 
@@ -17,8 +17,6 @@ from estimators.model.vehicle import Vehicle
 from offboard.control import smc
 from offboard.control.boundary_layers import FLIGHT_LAYER_ERRORS, error_boundary_layers
 from offboard.flight.fly_args import add_flight_arguments
-from offboard.flight.fly_cli import torque_law_params
-from offboard.harness.batched_controllers import smc_step as smc_step_batched
 
 VEHICLE = Vehicle()
 ZERO7 = (0.0,) * 7
@@ -90,22 +88,6 @@ def test_each_loop_switches_with_its_own_layer() -> None:
         assert (cmd.tau_phi, cmd.tau_theta) == pytest.approx((at[c].tau_phi, at[c].tau_theta), rel=1e-12, abs=1e-12)
         differs += abs(at[a].tau_phi - at[c].tau_phi) > 1e-6  # the widths matter: the wrong one is another law
     assert differs > 10  # (where both clip the pair to the same limit they agree)
-
-
-def test_the_batched_law_uses_the_same_layers() -> None:
-    params = torque_law_params(VEHICLE, "smooth", 1.0, layered=True)
-    assert params.layer_errors == FLIGHT_LAYER_ERRORS
-    rng = np.random.default_rng(4)
-    states = [_state(rng) for _ in range(40)]
-    rfx, rfy, rz, rpsi = _ref()
-    est = {f: np.array([getattr(e, f) for e in states]) for f in ControlState._fields}
-    est["fx"], est["fy"] = est["fx"].T, est["fy"].T
-    u, _, _ = smc_step_batched(0.0, est, rfx, rfy, rz, rpsi, np.zeros((8, len(states))), params)
-    for k, e in enumerate(states):
-        cmd, _ = smc.step(0.0, e, rfx, rfy, rz, rpsi, smc.ControllerMemory(), params)
-        np.testing.assert_allclose(
-            u[:, k], (cmd.thrust, cmd.tau_phi, cmd.tau_theta, cmd.tau_psi), rtol=1e-9, atol=1e-12
-        )
 
 
 def test_inside_its_layer_the_horizontal_switching_is_linear_not_a_jump() -> None:
