@@ -37,6 +37,7 @@ from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc
 from offboard.control.boundary_layers import FLIGHT_LAYER_ERRORS
+from offboard.control.reference_stop import StoppingReference
 from offboard.control.scenarios import PAPER_DISTURBANCE_START_S, make_scenario
 from offboard.harness import sim as sim_mod
 from offboard.harness.demo_cli import configure, run_demo
@@ -111,6 +112,15 @@ def test_demo_flies_the_paper_scenario_like_sim(tmp_path, sim_runs, flavor: str,
     m, folder, emu = run_demo(args, quiet=True)
     assert m["flight"]["ended_by"] == "completed" and m["completed"] and m["all_finite"]
     assert m["flight"]["truth_source"] == "emulator truth"
+    # the figure-eight still moves at its end: the loop brought it to rest before the hand-over (the reference's
+    # smooth stop, offboard.control.reference_stop), so the autopilot's hold was given a vehicle at rest
+    stop_s = StoppingReference(make_scenario("paper", duration=DURATION).reference, DURATION).stop_s
+    assert stop_s > 2.0 and m["config"]["stop_after_s"] == pytest.approx(DURATION)
+    assert m["settle"]["flown_s"] >= stop_s - 0.01
+    with open(folder / "timeseries_live.csv", encoding="utf-8") as f:
+        names = f.readline().strip().split(",")
+        last = dict(zip(names, (float(v) for v in f.readlines()[-1].split(",")), strict=True))
+    assert all(last[f"ref_f{a}{k}"] == 0.0 for a in "xy" for k in range(1, 7)), last
     assert m["duration_s"] == pytest.approx(DURATION, abs=0.05)
     ratios = {k: m["rms"][k] / sim_m["rms"][k] for k in SIGNALS}
     for k in SIGNALS:

@@ -231,6 +231,8 @@ def write_flight_outputs(
                 and not getattr(args, "layer_errors", None)
                 else None
             ),
+            # where the reference's smooth stop to rest began (offboard.control.reference_stop; replay applies it)
+            "stop_after_s": getattr(args, "stop_after_s", None),
             # the torque-level law's per-loop boundary layers (smc.error_boundary_layers; replay applies them)
             "layer_errors": getattr(args, "layer_errors", None) if getattr(args, "law", None) == "torque" else None,
             # the torque-level law's pole scale for the measured loop delay (offboard.control.delay_margin; replay

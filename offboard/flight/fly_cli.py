@@ -245,7 +245,7 @@ def fly(
         loop = FlightLoop(
             conn,
             vehicle,
-            scenario.reference,
+            flown_reference(scenario.reference, duration, cfg.settle_s, args),
             duration,
             params,
             mapper,
@@ -367,6 +367,21 @@ def write_refusal_events(out_dir: Path, loop: FlightLoop, exc: UserError) -> Non
             "error": str(exc),
         },
     )
+
+
+def flown_reference(reference: Any, duration: float, settle_s: float, args: argparse.Namespace) -> Any:
+    """The reference the loop flies: ``reference`` up to ``duration`` (s), then, unless ``--settle 0`` hands over
+    at once, its smooth stop to rest (``offboard.control.reference_stop``: a reference still moving at its end, the
+    paper's figure-eight, would be handed to the autopilot's hold at speed). ``args.stop_after_s`` records where
+    the stop starts, for ``slung replay`` (None: no stop)."""
+    from offboard.control.reference_stop import StoppingReference
+
+    if settle_s <= 0.0:
+        args.stop_after_s = None
+        return reference
+    stopping = StoppingReference(reference, duration)
+    args.stop_after_s = duration if stopping.stop_s > 0.0 else None
+    return stopping if stopping.stop_s > 0.0 else reference
 
 
 def resolve_switching(args: argparse.Namespace, law: str, vehicle: Vehicle) -> smc.ControllerParams:

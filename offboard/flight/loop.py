@@ -848,7 +848,7 @@ class FlightLoop:
         stats = self.stats
         link_lat = self.latency
         budget = self.horizon_budget_s
-        settle_s = cfg.settle_s
+        settle_s = cfg.settle_s + float(getattr(self.reference, "stop_s", 0.0))  # the stop, then the settle
         last_est: ControlState | None = None
         # between ticks the filter fuses what the next tick's estimate would (MeasuredKalmanEstimator.prefuse), off
         # the path from telemetry to setpoint; slung replay does the same at the same place
@@ -1013,21 +1013,34 @@ class FlightLoop:
         return swing_amplitude(est.alpha_x, est.alpha_y, est.alpha_x_rate, est.alpha_y_rate, self.k.g / self.k.l)
 
     def _settled(self, est: ControlState | None, past_end_s: float) -> bool:
-        """After the reference's end (``past_end_s`` s ago): whether the flight may end now, i.e. the load's swing
-        amplitude is within ``settle_swing_rad`` or ``settle_s`` has passed (reported either way). A trajectory that
-        ends with the load swinging would otherwise hand a swinging load to the autopilot's hold, which does not
-        damp it (PX4's and ArduPilot's position controllers know nothing of the load)."""
+        """After the reference's end (``past_end_s`` s ago): whether the flight may end now. First the reference's
+        smooth stop, if it has one (``offboard.control.reference_stop``, ``stop_s``: a reference still moving at
+        its end is brought to rest, so that the autopilot's hold is given a vehicle at rest); then the load's swing
+        amplitude within ``settle_swing_rad``, or ``settle_s`` more has passed (reported either way). A flight that
+        ends with the vehicle moving or the load swinging would otherwise hand them to the autopilot's hold, which
+        brakes on its own and does not damp the swing (PX4's and ArduPilot's position controllers know nothing of
+        the load)."""
         cfg = self.cfg
+        stop_s = float(getattr(self.reference, "stop_s", 0.0))
         amp = self.swing_amplitude(est) if est is not None else 0.0
+        if past_end_s < stop_s:
+            if not self._settling:
+                self._settling = True
+                self.event(
+                    "phase",
+                    f"end of the reference: stopping over {stop_s:.2f} s (the load swinging {amp:.3f} rad), then "
+                    f"flying on until the swing is within {cfg.settle_swing_rad:g} rad (at most {cfg.settle_s:g} s)",
+                )
+            return False
         if amp <= cfg.settle_swing_rad:
             if self._settling:
                 self.event("phase", f"the swing settled ({amp:.3f} rad) {past_end_s:.2f} s after the reference's end")
             return True
-        if past_end_s > cfg.settle_s:
+        if past_end_s > stop_s + cfg.settle_s:
             if cfg.settle_s > 0.0:
                 self.event(
                     "settle_timeout",
-                    f"the load still swings {amp:.3f} rad {cfg.settle_s:g} s after the reference's end "
+                    f"the load still swings {amp:.3f} rad {stop_s + cfg.settle_s:g} s after the reference's end "
                     f"(settle bound {cfg.settle_swing_rad:g} rad): handing over anyway",
                 )
             return True

@@ -139,6 +139,8 @@ def build_config(args: argparse.Namespace, meta: dict[str, Any], live: Any = Non
     if reference is not None:
         origin = cfg.get("origin_xy") if not args.scenario and not args.trajectory else None
         ground_z = cfg.get("ground_z") if not args.scenario and not args.trajectory else None
+        # the live loop's smooth stop after the reference's end (offboard.control.reference_stop)
+        stop = cfg.get("stop_after_s") if not args.scenario and not args.trajectory else None
         start = args.reference_start  # else the tick plan's own controller time (the loop's t - t0)
         reference = ReferenceSpec(
             reference.scenario,
@@ -146,6 +148,7 @@ def build_config(args: argparse.Namespace, meta: dict[str, Any], live: Any = Non
             tuple(origin) if isinstance(origin, list) and len(origin) == 2 else None,
             reference.trajectory,
             float(ground_z) if isinstance(ground_z, (int, float)) and math.isfinite(ground_z) else 0.0,
+            float(stop) if isinstance(stop, (int, float)) and math.isfinite(stop) else None,
         )
     if args.t_from is not None and args.t_to is not None and args.t_to <= args.t_from:
         raise UserError(f"--to ({args.t_to:g} s) must be after --from ({args.t_from:g} s)")

@@ -25,23 +25,32 @@ class ReferenceSpec:
     whose controller time ``t_ref`` is used). ``origin``: the horizontal shift (m, world NWU) the live loop added
     to the reference's F_x, F_y, or None to recompute it as the loop does (vehicle position at the start minus
     the reference's start). ``ground_z``: the local z (model frame, m) of the take-off point the live loop added to
-    the reference's heights (``metrics.json`` ``config.ground_z``; 0 for logs from before it was recorded)."""
+    the reference's heights (``metrics.json`` ``config.ground_z``; 0 for logs from before it was recorded).
+    ``stop_after_s``: where the live loop's smooth stop to rest began (``config.stop_after_s``), None: none."""
 
     scenario: str
     start: float = math.nan
     origin: tuple[float, float] | None = None
     trajectory: str | None = None
     ground_z: float = 0.0
+    stop_after_s: float | None = None
 
     def build(self) -> Any:
-        """The reference object (``offboard.control.reference``): the named scenario's or the trajectory file's."""
+        """The reference object (``offboard.control.reference``): the named scenario's or the trajectory file's,
+        with the live loop's smooth stop from ``stop_after_s`` (s) on when it flew one."""
         if self.trajectory is not None:
             from offboard.control.trajectory_file import load_trajectory_file
 
-            return load_trajectory_file(self.trajectory)
-        from offboard.control.scenarios import make_scenario
+            reference = load_trajectory_file(self.trajectory)
+        else:
+            from offboard.control.scenarios import make_scenario
 
-        return make_scenario(self.scenario).reference
+            reference = make_scenario(self.scenario).reference
+        if self.stop_after_s is None:
+            return reference
+        from offboard.control.reference_stop import StoppingReference
+
+        return StoppingReference(reference, self.stop_after_s)
 
 
 class LiveLogMismatchError(ValueError):
