@@ -136,8 +136,12 @@ def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
     assert m["live_agreement"]["setpoint_identical"] == n
     # the run flew the torque-level law with its per-loop boundary layers (docs/model.md C-12), and the replay
     # rebuilt the law with them: one epsilon for all loops would be another law, and other setpoints
-    assert json.loads((run / "metrics.json").read_text())["config"]["layer_errors"] == list(FLIGHT_LAYER_ERRORS)
+    cfg = json.loads((run / "metrics.json").read_text())["config"]
+    assert cfg["layer_errors"] == list(FLIGHT_LAYER_ERRORS)
     assert m["config"]["layer_errors"] == list(FLIGHT_LAYER_ERRORS)
+    # the paper scenario still climbs at 1.5 s: the loop flew the reference's smooth stop after it (at least 2 s,
+    # offboard.control.reference_stop), and those ticks, replayed with the stop, are among the identical ones above
+    assert cfg["stop_after_s"] == pytest.approx(1.5) and live["t_ref"][-1] > 1.5 + 2.0 - 0.01
     # what went over the wire (float32) is what the replay recomputes, rounded to float32
     assert m["setpoint_agreement"]["float32_identical"] == m["setpoint_agreement"]["ticks_compared"] == n
     assert m["log"]["has_offboard_segment"] and m["log"]["autopilot"] == flavor
