@@ -37,6 +37,7 @@ AT_REST = 1e-9
 
 _DEGREE = 2 * ORDERS - 2  # 12: the rate's orders 0..5 at both ends, integrated
 _FACT = [math.factorial(k) for k in range(_DEGREE + 1)]
+_POWERS = np.arange(_DEGREE + 1)  # the exponents of x, made once (sample runs every tick of the stop)
 
 
 def stop_duration(end: FlatSample) -> float:
@@ -97,18 +98,17 @@ class StoppingReference:
         end = reference.sample(self.t_end)
         self.stop_s = stop_duration(end)
         if self.stop_s == 0.0:  # at rest at its end: the reference itself, unchanged
-            self._coeffs: list[np.ndarray] = []
             return
-        self._coeffs = [_stop_polynomial(ch, self.stop_s) for ch in end]
+        coeffs = [_stop_polynomial(ch, self.stop_s) for ch in end]
         # rows: channel-major, orders 0..6 of each, in per-second units; columns: powers x^0..x^12, so that one
         # product with the powers of x gives every derivative of every channel (a few microseconds a tick)
         rows = []
-        for c in self._coeffs:
+        for c in coeffs:
             for k in range(ORDERS):
                 d = np.polynomial.polynomial.polyder(c, k) / self.stop_s**k if k else c
                 rows.append(np.pad(d, (0, _DEGREE + 1 - len(d))))
         self._matrix = np.array(rows)
-        self._rest = FlatSample(*(tuple([float(np.sum(c)), *(0.0,) * (ORDERS - 1)]) for c in self._coeffs))
+        self._rest = FlatSample(*(tuple([float(np.sum(c)), *(0.0,) * (ORDERS - 1)]) for c in coeffs))
 
     @property
     def duration(self) -> float:
@@ -124,6 +124,6 @@ class StoppingReference:
         x = (t - self.t_end) / self.stop_s
         if x >= 1.0:
             return self._rest
-        v = (self._matrix @ (x ** np.arange(_DEGREE + 1))).tolist()
+        v = (self._matrix @ (x**_POWERS)).tolist()
         n = ORDERS
         return FlatSample(tuple(v[0:n]), tuple(v[n : 2 * n]), tuple(v[2 * n : 3 * n]), tuple(v[3 * n :]))
