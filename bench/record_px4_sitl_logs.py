@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import subprocess
-import time
 from pathlib import Path
 
 from bench_px4_hover import slung_fly
@@ -33,7 +32,7 @@ def main() -> int:
         )
         cmd += ["--end", "land", "--out", str(args.out / "fly")]
         code = subprocess.call(cmd)
-        time.sleep(15.0)  # landing and disarm, still logged by PX4
+        px4.run_for(15.0)  # landing and disarm (15 s of PX4's clock), still logged by PX4
     for f in [args.out / "fly" / "flight.tlog", *sorted((args.out / "px4").rglob("*.ulg"))]:
         print(f, f.stat().st_size if f.exists() else "missing")
     return code

@@ -89,6 +89,8 @@ class Flight:
     error: str | None = None
     #: why the flight was flown a second time (PX4's simulator starved before control, :func:`_px4_starved`)
     retried: str | None = None
+    #: seconds of PX4's clock it ran by itself after ``slung fly`` ended, before it was stopped
+    px4_after_s: float = 0.0
 
     @property
     def metrics(self) -> dict[str, Any]:
@@ -106,8 +108,9 @@ def _fly(
     root: Path, name: str, instance: int, action: str | None, duration: float, hold_after: float, *, base: Path
 ) -> Flight:
     """Start PX4 instance ``instance``, fly ``slung -v fly`` against it, do ``action`` (``sigint`` / ``freeze``)
-    3 s after offboard control started, leave PX4 holding by itself for ``hold_after`` s (wall clock), stop PX4 and
-    read its ULog."""
+    3 s after offboard control started, leave PX4 holding by itself for ``hold_after`` s of its own clock
+    (:meth:`Px4Sitl.run_for`: on a loaded machine PX4's clock runs slower than the wall clock), stop PX4 and read its
+    ULog."""
     out = base / name
     out.mkdir(parents=True, exist_ok=True)
     traj = out / "trajectory.toml"
@@ -175,7 +178,8 @@ def _fly(
         flight.stderr = "".join(lines)
         assert sitl.started_monotonic is not None
         flight.marks = {k: v - sitl.started_monotonic for k, v in flight.marks.items()}  # PX4 boot time, about
-        time.sleep(hold_after)  # let PX4 log what its hold did after the flight (the hover: PX4's own hold, judged)
+        # let PX4 log what its hold did after the flight (the hover: PX4's own hold, judged)
+        flight.px4_after_s = sitl.run_for(hold_after)
     except Exception as exc:  # reported by the test that owns the flight
         flight.error = f"{type(exc).__name__}: {exc}"
     finally:
@@ -335,7 +339,11 @@ def test_the_hover_beside_px4_s_own_position_hold_in_the_same_run(flights: dict[
     q = flight_quality(f.ulog, t0, t1, ref, tr)
     h0 = t1 + PX4_HOLD_SETTLE_S
     h1 = min(h0 + PX4_HOLD_S, float(f.ulog.truth_pos.t[-1]) - 0.5)
-    assert h1 - h0 >= 15.0, f"PX4's own hold was logged for {h1 - h0:.1f} s only"
+    assert h1 - h0 >= 15.0, (
+        f"PX4's own hold was logged for {h1 - h0:.1f} s only: PX4 ran {f.px4_after_s:.1f} s of its clock after the "
+        f"flight, its log ends {float(f.ulog.truth_pos.t[-1]) - t1:.1f} s after the hand-over in nav state "
+        f"{f.ulog.nav_state_at(float(f.ulog.truth_pos.t[-1]))}, armed {f.ulog.armed_intervals()}"
+    )
     assert all(f.ulog.nav_state_at(t) == NAV_STATE["auto_loiter"] for t in np.linspace(h0 - 4.0, h1, 25))
     hold = flight_quality(f.ulog, h0, h1, ref[-1])
     ratio = q.truth_jitter_m / hold.truth_jitter_m

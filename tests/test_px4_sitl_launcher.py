@@ -116,6 +116,9 @@ def test_sitl_starts_speaks_mavlink_logs_and_stops(tmp_path: Path) -> None:
             assert tilt is not None and 0.1 < tilt < 1.5
         finally:
             link.close()
+        # PX4's own clock, not the wall clock: run_for waits for it (and nobody else is on the link now)
+        ran = sitl.run_for(2.0)
+        assert 2.0 <= ran < 3.0, ran
         assert sitl.ulogs(), "PX4 logs from boot (SDLOG_MODE 1)"
     assert not sitl.running
     assert "Ready for takeoff!" in sitl.log_text()
