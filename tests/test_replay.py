@@ -139,6 +139,8 @@ def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
     cfg = json.loads((run / "metrics.json").read_text())["config"]
     assert cfg["layer_errors"] == list(FLIGHT_LAYER_ERRORS)
     assert m["config"]["layer_errors"] == list(FLIGHT_LAYER_ERRORS)
+    # and with its model of the motors' lag (docs/model.md C-13): the replay led over the same 20 ms
+    assert cfg["actuation_lag_s"] == m["config"]["actuation_lag_s"] == pytest.approx(0.02)
     # the paper scenario still climbs at 1.5 s: the loop flew the reference's smooth stop after it (at least 2 s,
     # offboard.control.reference_stop), and those ticks, replayed with the stop, are among the identical ones above
     assert cfg["stop_after_s"] == pytest.approx(1.5) and live["t_ref"][-1] > 1.5 + 2.0 - 0.01

@@ -134,6 +134,11 @@ def test_flights_default_to_the_layers_and_an_epsilon_restores_the_paper_s_one_w
     args = p.parse_args(["--switching", "sign"])
     resolved = fly_cli.resolve_switching(args, "torque", VEHICLE)
     assert (resolved.switching, resolved.layer_errors) == ("sign", None)
+    # whatever the switching, the flight's torque-level law leads over the vehicle's motor lag (docs/model.md C-13),
+    # recorded for replay; the attitude-level law records none (its inner loop is the autopilot's)
+    assert resolved.actuation_lag_s == args.actuation_lag_s == VEHICLE.motor_time_constant > 0.0
+    fly_cli.resolve_switching(args := p.parse_args([]), "attitude", VEHICLE)
+    assert args.actuation_lag_s is None
 
 
 def test_the_layers_fly_the_paper_seed_that_the_sign_law_swings_up() -> None:

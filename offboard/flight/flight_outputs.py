@@ -235,6 +235,9 @@ def write_flight_outputs(
             "stop_after_s": getattr(args, "stop_after_s", None),
             # the torque-level law's per-loop boundary layers (smc.error_boundary_layers; replay applies them)
             "layer_errors": getattr(args, "layer_errors", None) if getattr(args, "law", None) == "torque" else None,
+            # the torque-level law's model of the motors' lag, s (smc actuation_lag_s; replay applies it)
+            # (None with the attitude-level law: resolve_switching)
+            "actuation_lag_s": getattr(args, "actuation_lag_s", None),
             # the torque-level law's pole scale for the measured loop delay (offboard.control.delay_margin; replay
             # applies it)
             "gain_scale": result.gain_scale,

@@ -397,22 +397,33 @@ def resolve_switching(args: argparse.Namespace, law: str, vehicle: Vehicle) -> s
     args.layer_errors = list(FLIGHT_LAYER_ERRORS) if layered else None
     if getattr(args, "epsilon", None) is None:
         args.epsilon = 1.0
-    return torque_law_params(vehicle, args.switching, args.epsilon, layered)
+    params = torque_law_params(vehicle, args.switching, args.epsilon, layered, motor_lag=law == "torque")
+    args.actuation_lag_s = params.actuation_lag_s if law == "torque" else None
+    return params
 
 
-def torque_law_params(vehicle: Vehicle, switching: str, epsilon: float, layered: bool = False) -> smc.ControllerParams:
+def torque_law_params(
+    vehicle: Vehicle, switching: str, epsilon: float, layered: bool = False, *, motor_lag: bool = False
+) -> smc.ControllerParams:
     """The torque-level law a flight uses: the paper's, with the vehicle's limits, and on an X frame the roll and
     pitch torques limited together (``shared_roll_pitch``): every motor takes part in both, so a pair at the corner
     of the per-axis box is one the motors cannot give, and PX4's allocator (sequential desaturation, roll before
     pitch) then cut the roll torque alone; at 30 % packet loss that swung the load up in world y, the roll axis, in
     12-16 of 64 hovers (3-4 with this limit; docs/estimation.md section 0.3). ``layered``: each loop's own
-    boundary layer (``boundary_layers.FLIGHT_LAYER_ERRORS``) instead of ``epsilon`` for the smooth switching."""
+    boundary layer (``boundary_layers.FLIGHT_LAYER_ERRORS``) instead of ``epsilon`` for the smooth switching.
+
+    ``motor_lag`` (a flight's default, :func:`resolve_switching`): the law leads over the motors' first-order lag,
+    the vehicle file's ``motor_time_constant_s`` (``ControllerParams.actuation_lag_s``), the same lag through which
+    the flight's filter is given the delivered torque (``ActuatorLag``), so that the law's model of the tilt
+    acceleration it has started is the filter's. Without it ``slung demo --seed 9`` swung the load up behind the
+    emulator's PX4 attitude loops (the swing watchdog at 0.8 rad; with it 14 of 14 seeds fly, docs/model.md C-13)."""
     return smc.ControllerParams.for_vehicle(
         vehicle,
         switching=switching,
         epsilon=epsilon,
         shared_roll_pitch=vehicle.frame == "x",
         layer_errors=FLIGHT_LAYER_ERRORS if layered else None,
+        actuation_lag_s=vehicle.motor_time_constant if motor_lag else 0.0,
     )
 
 

@@ -91,6 +91,12 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="with --switching smooth: each loop's boundary layer scaled to its own sliding variable (the sliding "
         "variable of a 2 cm / 0.02 rad error), as slung fly's torque-level law flies by default, instead of --epsilon",
     )
+    p.add_argument(
+        "--motor-lag",
+        action="store_true",
+        help="the torque-level law leads over the vehicle's motor time constant (its model of the motors' lag), as "
+        "slung fly's torque-level law flies by default; for --actuators mixer / px4, whose motors lag",
+    )
     add_no_figures_argument(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if needed)")
 
@@ -130,7 +136,11 @@ def run_cli(args: argparse.Namespace) -> dict[str, Any]:
         raise UserError("--layers sets the boundary layers of --switching smooth: add --switching smooth")
     layer_errors = FLIGHT_LAYER_ERRORS if args.layers else None
     params = smc.ControllerParams.for_vehicle(
-        vehicle, switching=args.switching, epsilon=args.epsilon, layer_errors=layer_errors
+        vehicle,
+        switching=args.switching,
+        epsilon=args.epsilon,
+        layer_errors=layer_errors,
+        actuation_lag_s=vehicle.motor_time_constant if args.motor_lag else 0.0,
     )
     _print_feasibility(scenario, vehicle, params)
     progress = _progress_printer() if sys.stderr.isatty() else None
@@ -140,6 +150,7 @@ def run_cli(args: argparse.Namespace) -> dict[str, Any]:
     m["config"]["switching"] = args.switching
     m["config"]["epsilon"] = args.epsilon if args.switching == "smooth" and not args.layers else None
     m["config"]["layer_errors"] = list(layer_errors) if layer_errors else None
+    m["config"]["actuation_lag_s"] = params.actuation_lag_s or None
     report.write_report(log, m, out_dir, figures=not args.no_figures, command="sim")
     print(f"scenario {scenario.name}: {scenario.description}")
     print(metrics_mod.format_table(m))

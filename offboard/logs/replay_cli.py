@@ -177,6 +177,10 @@ def build_config(args: argparse.Namespace, meta: dict[str, Any], live: Any = Non
     layers = cfg.get("layer_errors")
     if switching == "smooth" and isinstance(layers, list) and len(layers) == 3:
         extra["layer_errors"] = tuple(float(e) for e in layers)
+    # the live run's model of the motors' lag (runs recorded before it flew the paper's law, lag 0)
+    lag = cfg.get("actuation_lag_s")
+    if isinstance(lag, (int, float)) and math.isfinite(lag) and lag > 0.0:
+        extra["actuation_lag_s"] = float(lag)
     return ReplayConfig(
         vehicle=vehicle,
         t_from=args.t_from,

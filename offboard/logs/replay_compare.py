@@ -259,6 +259,7 @@ def replay_metrics(
             "law": config.law,
             "epsilon": config.epsilon,
             "layer_errors": None if config.layer_errors is None else list(config.layer_errors),
+            "actuation_lag_s": config.actuation_lag_s,
             "delay_s": config.delay_s,
             "external_feedforward": config.external_feedforward,
             "reference": None if ref is None else {"scenario": ref.scenario, "origin": extra.get("origin")},

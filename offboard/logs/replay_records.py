@@ -121,7 +121,8 @@ class ReplayConfig:
     rate_hz: tick rate where no setpoints are logged (and the estimator's step when the log does not say);
     estimator: estimator kind; load_sensor: None = use one when the log has it; delay_s: the estimator's fusion
     horizon (s); reference: see :class:`ReferenceSpec` (None: no controller); switching / epsilon: the
-    controller's switching function; law: ``"torque"`` (``offboard.control.smc``) or ``"attitude"``
+    controller's switching function; layer_errors: the torque-level law's per-loop boundary layers; actuation_lag_s:
+    its model of the motors' lag (s; 0: the paper's law); law: ``"torque"`` (``offboard.control.smc``) or ``"attitude"``
     (``offboard.control.smc_attitude``), the live run's; gain_scale: the torque-level law's pole scale the live run
     chose for its measured loop delay (``offboard.control.delay_margin``; 1: the paper's gains); shared_roll_pitch:
     the live run's torque-level law limited its roll / pitch pair to an X frame's shared motor margin
@@ -145,6 +146,7 @@ class ReplayConfig:
     switching: str = "smooth"
     epsilon: float = 1.0
     layer_errors: tuple[float, float, float] | None = None
+    actuation_lag_s: float = 0.0
     law: str = "torque"
     gain_scale: float = 1.0
     shared_roll_pitch: bool = False

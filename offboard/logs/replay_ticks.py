@@ -113,6 +113,7 @@ def replay_ticks(
         epsilon=config.epsilon,
         shared_roll_pitch=config.shared_roll_pitch,
         layer_errors=config.layer_errors,
+        actuation_lag_s=config.actuation_lag_s,
     )
     if config.gain_scale != 1.0:  # as the live loop scheduled them (FlightLoop._schedule_gains)
         params = replace(params, gains=params.gains.scaled(config.gain_scale))

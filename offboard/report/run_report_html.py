@@ -40,6 +40,9 @@ def run_title(command: str, log: SimLog, metrics: dict[str, Any]) -> str:
         elif sw == "smooth" and cfg.get("epsilon"):
             detail = f" (ε = {cfg['epsilon']:g})"
         parts.append(f"{sw} switching{detail}")
+    lag = cfg.get("actuation_lag_s")
+    if isinstance(lag, (int, float)) and lag > 0.0:
+        parts.append(f"{lag * 1e3:g} ms motor lag designed in")  # docs/model.md C-13
     return f"slung {command}: " + ", ".join(parts)
 
 
