@@ -54,8 +54,8 @@ def non_negative_int(text: str) -> int:
 
 def add_controller_arguments(p: argparse.ArgumentParser, flight: bool = False) -> None:
     """Controller options shared by ``sim``, ``fly``, ``demo`` and ``replay``; ``flight``: the defaults of ``fly``
-    and ``demo`` (smooth switching, each loop's own boundary layer; resolved per law in ``fly_cli.resolve_switching``)
-    instead of the paper's."""
+    and ``demo`` (smooth switching, each loop's own boundary layer; resolved per law in
+    ``flight_law.resolve_switching``) instead of the paper's."""
     p.add_argument(
         "--switching",
         choices=values(Switching),

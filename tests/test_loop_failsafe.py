@@ -211,9 +211,10 @@ def test_thirty_percent_packet_loss_flies_within_the_watchdogs_or_ends_in_hold(t
     100-115 x sensor seeds 0-3) with the paper's sign switching 59 stayed within 0.3 m and 0.3 rad, 4 swung up in
     world y (the roll axis) and were ended by the swing limit, 1 by telemetry_stale; with the flight's default law
     since 4 Dec 2026 (per-loop boundary layers, the motors' lag designed in) 64 of 64, swing at most 0.026 rad
-    (docs/estimation.md 0.3); a run that completed with 0.68 rad of swing was seen once in CI (2026-12-02). About 3 % of starts used to lose the OFFBOARD confirmation (three 1 Hz
-    heartbeats in a row lost, 0.3^3); the supervisor now waits for two heartbeats without the mode, up to 9 s, so
-    that a ``mode_not_entered`` hold takes nine lost in a row (0.3^9)."""
+    (docs/estimation.md 0.3); a run that completed with 0.68 rad of swing was seen once in CI (2026-12-02). About
+    3 % of starts used to lose the OFFBOARD confirmation (three 1 Hz heartbeats in a row lost, 0.3^3); the
+    supervisor now waits for two heartbeats without the mode, up to 9 s, so that a ``mode_not_entered`` hold takes
+    nine lost in a row (0.3^9)."""
     m, folder, emu = run_demo(
         demo_args(tmp_path, "--scenario", "hover", "--duration", "4", "--rate", "100", "--loss", "0.3"), quiet=True
     )

@@ -5,7 +5,7 @@ pair the motors cannot give by cutting the roll torque first. The torque-level l
 asked for such pairs whenever both torques saturated or the height loop's sign switching took the thrust below
 the margin; at 30 % packet loss the cut roll torque swung the load up in world y, the roll axis, in about one
 hover in five (the same runs with the emulator's order mirrored, pitch first, swung up in x instead). The law of
-a flight (``offboard.flight.fly_cli.torque_law_params``) now asks only for what the motors give."""
+a flight (``offboard.flight.flight_law.torque_law_params``) now asks only for what the motors give."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ import pytest
 from estimators.model.control_state import ControlState
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc
-from offboard.flight.fly_cli import torque_law_params
+from offboard.flight.flight_law import torque_law_params
 from offboard.harness.batched_controllers import smc_step as smc_step_batched
 from sim_bridge.inner.px4_inner import Px4ActuatorPath
 

@@ -273,7 +273,7 @@ def test_gains_follow_the_vehicle_and_its_autopilot() -> None:
 
 
 def test_vehicle_file_gains_round_trip_and_unknown_names_are_refused(tmp_path) -> None:
-    from offboard.flight.fly_cli import vehicle_gain_overrides
+    from offboard.flight.flight_law import vehicle_gain_overrides
 
     v = SIH.with_changes(gains=(("reach_F", 2.0), ("wn_F", 2.2)))
     f = tmp_path / "v.toml"
@@ -307,7 +307,7 @@ def test_auto_law_takes_the_attitude_law_only_where_robust_gains_exist() -> None
     """Behind the PX4 SITL build's attitude loop (MC_ROLL_P 4): the SIH quadrotor without a load gets the attitude
     law; the paper's vehicle (a 0.2 kg load swinging at 6.8 rad/s) does not (docs/model.md §12.5), and with PX4's
     older 6.5 it does; --output actuator is always the torque law; an explicit --law is kept."""
-    from offboard.flight.fly_cli import resolve_law
+    from offboard.flight.flight_law import resolve_law
 
     assert sa.robust_gains_exist(SIH, sa.InnerLoop())
     assert not sa.robust_gains_exist(PAPER, sa.InnerLoop())

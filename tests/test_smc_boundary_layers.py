@@ -115,29 +115,29 @@ def test_inside_its_layer_the_horizontal_switching_is_linear_not_a_jump() -> Non
 
 
 def test_flights_default_to_the_layers_and_an_epsilon_restores_the_paper_s_one_width() -> None:
-    from offboard.flight import fly_cli
+    from offboard.flight import flight_law
 
     p = argparse.ArgumentParser()
     add_flight_arguments(p)
     args = p.parse_args([])
     assert args.switching is None and args.epsilon is None  # resolved in fly(), per law
     # the resolution fly() does (its first lines), without flying
-    resolved = fly_cli.resolve_switching(args, "torque", VEHICLE)
+    resolved = flight_law.resolve_switching(args, "torque", VEHICLE)
     assert (args.switching, args.layer_errors, resolved.layer_errors) == (
         "smooth",
         list(FLIGHT_LAYER_ERRORS),
         FLIGHT_LAYER_ERRORS,
     )
     args = p.parse_args(["--epsilon", "1"])
-    resolved = fly_cli.resolve_switching(args, "torque", VEHICLE)
+    resolved = flight_law.resolve_switching(args, "torque", VEHICLE)
     assert (args.switching, args.layer_errors, resolved.layer_errors, resolved.epsilon) == ("smooth", None, None, 1.0)
     args = p.parse_args(["--switching", "sign"])
-    resolved = fly_cli.resolve_switching(args, "torque", VEHICLE)
+    resolved = flight_law.resolve_switching(args, "torque", VEHICLE)
     assert (resolved.switching, resolved.layer_errors) == ("sign", None)
     # whatever the switching, the flight's torque-level law leads over the vehicle's motor lag (docs/model.md C-13),
     # recorded for replay; the attitude-level law records none (its inner loop is the autopilot's)
     assert resolved.actuation_lag_s == args.actuation_lag_s == VEHICLE.motor_time_constant > 0.0
-    fly_cli.resolve_switching(args := p.parse_args([]), "attitude", VEHICLE)
+    flight_law.resolve_switching(args := p.parse_args([]), "attitude", VEHICLE)
     assert args.actuation_lag_s is None
 
 

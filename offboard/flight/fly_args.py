@@ -77,7 +77,7 @@ def add_reference_arguments(p: argparse.ArgumentParser) -> None:
 
 def add_flight_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None:
     """Options shared by ``fly`` and ``demo``."""
-    # --switching / --epsilon resolved per law in fly() (fly_cli.resolve_switching): smooth switching for both laws,
+    # --switching / --epsilon resolved per law in fly() (flight_law.resolve_switching): smooth switching for both laws,
     # each loop's boundary layer from its gains unless --epsilon gives the paper's one width for all (torque law)
     add_controller_arguments(p, flight=True)
     add_feedforward_argument(p)

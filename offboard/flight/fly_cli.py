@@ -29,9 +29,9 @@ from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle, load_vehicle
 from offboard.cli_args import feedforward_tuning
 from offboard.control import smc, smc_attitude
-from offboard.control.boundary_layers import FLIGHT_LAYER_ERRORS
 from offboard.flight.attitude_mapping import AttitudeLawMapper
 from offboard.flight.command_mapping import CommandMapper, MappingConfig
+from offboard.flight.flight_law import resolve_law, resolve_switching, vehicle_gain_overrides
 from offboard.flight.flight_outputs import write_flight_outputs
 from offboard.flight.fly_args import (
     add_flight_arguments,
@@ -382,70 +382,6 @@ def flown_reference(reference: Any, duration: float, settle_s: float, args: argp
     stopping = StoppingReference(reference, duration)
     args.stop_after_s = duration if stopping.stop_s > 0.0 else None
     return stopping if stopping.stop_s > 0.0 else reference
-
-
-def resolve_switching(args: argparse.Namespace, law: str, vehicle: Vehicle) -> smc.ControllerParams:
-    """``--switching`` / ``--epsilon`` for the flight's law, written back into ``args`` (recorded for replay, with
-    ``args.layer_errors``), and the torque-level law's parameters. Default: smooth switching for both laws; the
-    torque-level law's with each loop's own boundary layer (``boundary_layers.error_boundary_layers``) unless
-    ``--epsilon`` gives the paper's one width for all. The paper's sign(.) chattered the roll / pitch torque on the
-    filter's noise, into the torque limits under the paper's disturbances, and swung the load up in 4 of 14 seeds
-    of ``slung demo`` (1 of 14 with the layers; docs/model.md C-12)."""
-    if getattr(args, "switching", None) is None:
-        args.switching = "smooth"
-    layered = args.switching == "smooth" and getattr(args, "epsilon", None) is None and law == "torque"
-    args.layer_errors = list(FLIGHT_LAYER_ERRORS) if layered else None
-    if getattr(args, "epsilon", None) is None:
-        args.epsilon = 1.0
-    params = torque_law_params(vehicle, args.switching, args.epsilon, layered, motor_lag=law == "torque")
-    args.actuation_lag_s = params.actuation_lag_s if law == "torque" else None
-    return params
-
-
-def torque_law_params(
-    vehicle: Vehicle, switching: str, epsilon: float, layered: bool = False, *, motor_lag: bool = False
-) -> smc.ControllerParams:
-    """The torque-level law a flight uses: the paper's, with the vehicle's limits, and on an X frame the roll and
-    pitch torques limited together (``shared_roll_pitch``): every motor takes part in both, so a pair at the corner
-    of the per-axis box is one the motors cannot give, and PX4's allocator (sequential desaturation, roll before
-    pitch) then cut the roll torque alone; at 30 % packet loss that swung the load up in world y, the roll axis, in
-    12-16 of 64 hovers (3-4 with this limit; docs/estimation.md section 0.3). ``layered``: each loop's own
-    boundary layer (``boundary_layers.FLIGHT_LAYER_ERRORS``) instead of ``epsilon`` for the smooth switching.
-
-    ``motor_lag`` (a flight's default, :func:`resolve_switching`): the law leads over the motors' first-order lag,
-    the vehicle file's ``motor_time_constant_s`` (``ControllerParams.actuation_lag_s``), the same lag through which
-    the flight's filter is given the delivered torque (``ActuatorLag``), so that the law's model of the tilt
-    acceleration it has started is the filter's. Without it ``slung demo --seed 9`` swung the load up behind the
-    emulator's PX4 attitude loops (the swing watchdog at 0.8 rad; with it 14 of 14 seeds fly, docs/model.md C-13)."""
-    return smc.ControllerParams.for_vehicle(
-        vehicle,
-        switching=switching,
-        epsilon=epsilon,
-        shared_roll_pitch=vehicle.frame == "x",
-        layer_errors=FLIGHT_LAYER_ERRORS if layered else None,
-        actuation_lag_s=vehicle.motor_time_constant if motor_lag else 0.0,
-    )
-
-
-def resolve_law(law: str | None, output: str, vehicle: Vehicle) -> str:
-    """``--law auto`` -> ``attitude`` or ``torque`` (see the option's help); the others as given."""
-    if law not in (None, "auto"):
-        return law
-    if output != "attitude":
-        return "torque"
-    if smc_attitude.robust_gains_exist(vehicle, smc_attitude.InnerLoop()):
-        return "attitude"
-    # a load swinging faster than the autopilot's attitude loop (docs/model.md §12.5); the start line names the law
-    return "torque"
-
-
-def vehicle_gain_overrides(vehicle: Vehicle) -> dict[str, float]:
-    """The attitude-level law's gains set in the vehicle file's ``[gains]`` table (UserError for an unknown name)."""
-    known = smc_attitude.GAIN_NAMES
-    for name, _ in vehicle.gains:
-        if name not in known:
-            raise UserError(f"vehicle file: unknown gain {name!r} in [gains] (known: {', '.join(known)})")
-    return dict(vehicle.gains)
 
 
 def check_feasibility(
