@@ -31,7 +31,8 @@ disturbance.
 Drag: a vehicle with ``linear_drag`` > 0 (``estimators.model.vehicle.Vehicle``; PX4 SIH's SIH_KDV, 1 N/(m/s) on its
 1 kg quadrotor) also feels ``-linear_drag * v`` (world frame, still air), added to the force on the vehicle (slots
 4-6) before every step and held over it, so that its accelerometer senses it as SIH's does; the disturbance log
-(``input_log``) keeps the disturbance alone.
+(``input_log``) keeps the disturbance alone. A vehicle with ``angular_drag`` > 0 (SIH_KDW, 0.025 N m/(rad/s)) feels
+``-angular_drag * w`` on its body rates, added to the external torque (slots 10-12) the same way.
 
 Ground: the vehicle rests on the ground plane z = 0 (model NWU) on landing gear tall enough for the load to hang
 free; while on the ground and the collective thrust does not exceed the total weight the state is held at rest.
@@ -47,6 +48,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from estimators.model.rotations import body_rates
 from estimators.model.vehicle import Vehicle
 from sim_bridge.autopilot import SETPOINT_IDS, Autopilot
 from sim_bridge.emulator_api import EmulatorTruth
@@ -123,6 +125,9 @@ class Emulator:
         #: linear drag on the vehicle, N per m/s (module docstring), and the disturbance's force on the vehicle alone
         self.drag = vehicle.linear_drag
         self.dist_force = (0.0, 0.0, 0.0)
+        #: angular damping, N m per rad/s of body rate, and the disturbance's torque alone (body, model frame)
+        self.angular_drag = vehicle.angular_drag
+        self.dist_torque = (0.0, 0.0, 0.0)
         #: simulation time (µs) the disturbance's clock starts from (None: not known yet)
         self.dist_origin_us: int | None = 0 if disturbance_origin == "boot" else None
         #: largest |disturbance| seen per channel: force on the vehicle x, y, z (N world), yaw torque (N m)
@@ -147,6 +152,7 @@ class Emulator:
         d = self.disturbance(max(self.t_us - o, 0) * 1e-6)  # type: ignore[misc]
         u[4], u[5], u[6], u[7], u[8], u[9], u[10], u[11], u[12] = d
         self.dist_force = (u[4], u[5], u[6])
+        self.dist_torque = (u[10], u[11], u[12])
         m = self.dist_max_abs
         for i, j in ((0, 4), (1, 5), (2, 6), (3, 12)):
             a = abs(u[j])
@@ -196,6 +202,7 @@ class Emulator:
         dist = self.disturbance
         log = self.input_log
         drag = self.drag
+        kdw = self.angular_drag
         for _ in range(n):
             thrust, tx, ty, tz = ap.control(x, self.on_ground)
             u[0], u[1], u[2], u[3] = thrust, tx, ty, tz
@@ -206,6 +213,10 @@ class Emulator:
             if drag > 0.0:  # still air: the drag of the velocity at the step's start, held over the 1 ms step
                 fd = self.dist_force
                 u[4], u[5], u[6] = fd[0] - drag * x[3], fd[1] - drag * x[4], fd[2] - drag * x[5]
+            if kdw > 0.0:  # SIH's angular damping on the body rates at the step's start, held over the step
+                wx, wy, wz = body_rates(x[6], x[7], x[9], x[10], x[11])
+                td = self.dist_torque
+                u[10], u[11], u[12] = td[0] - kdw * wx, td[1] - kdw * wy, td[2] - kdw * wz
             if self.on_ground:
                 if thrust > weight * 1.0001:
                     self.on_ground = False

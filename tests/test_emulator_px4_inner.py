@@ -240,6 +240,34 @@ def test_sih_linear_drag_slows_the_vehicle_as_sihs_does() -> None:
         link.close()
 
 
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_sih_angular_damping_slows_the_rotation_as_sihs_does(axis: int) -> None:
+    """px4-sih's ``angular_drag_n_m_s_rad`` (SIH_KDW 0.025 N m per rad/s): unpowered and level, a body rate decays
+    as exp(-k t / I) about its own axis (inertia 0.025 / 0.025 / 0.030 kg m^2); the paper's vehicle has none."""
+    emu, _, link = build_emulator(EmulatorConfig(vehicle="px4-sih", mavlink=("udpout:127.0.0.1:9",)))
+    try:
+        assert emu.angular_drag == 0.025
+        rate = [0.0, 0.0, 0.0]
+        rate[axis] = 1.0  # level: the Euler rate is the body rate
+        emu.x = make_state((0.0, 0.0, 50.0), euler_rate=rate)
+        emu.on_ground = False
+        emu.step(400)  # 0.4 s, disarmed: no thrust, no torque but the damping
+        inertia = (0.025, 0.025, 0.030)[axis]
+        got = emu.x[9 + axis]
+        # held over each 1 ms step: (1 - 0.001 k / I)^400 against exp(-0.4 k / I), 2e-4 apart
+        assert got == pytest.approx(math.exp(-0.4 * 0.025 / inertia), rel=1e-3)
+    finally:
+        link.close()
+    emu, _, link = build_emulator(EmulatorConfig(mavlink=("udpout:127.0.0.1:9",)))
+    try:
+        emu.x = make_state((0.0, 0.0, 50.0), euler_rate=(0.0, 0.0, 1.0))
+        emu.on_ground = False
+        emu.step(100)
+        assert emu.angular_drag == 0.0 and emu.x[11] == 1.0
+    finally:
+        link.close()
+
+
 def test_the_in_process_attitude_path_tracks_a_tilt_step_as_px4s_attitude_loop() -> None:
     """``Px4AttitudePath`` (what ``slung compare`` flies the attitude-level law through in process): a 0.1 rad roll
     setpoint on SIH's vehicle at hover thrust is reached as a first-order attitude P loop with MC_ROLL_P = 4 and a

@@ -49,6 +49,7 @@ PLAUSIBLE: dict[str, tuple[float, float, str]] = {
     "motor_thrust_max": (0.01, 2000.0, "N"),
     "motor_time_constant": (0.0, 1.0, "s"),
     "linear_drag": (0.0, 100.0, "N/(m/s)"),
+    "angular_drag": (0.0, 10.0, "N m/(rad/s)"),
 }
 INERTIA_RANGE = (1e-6, 100.0)  # kg m^2, each principal moment
 
@@ -71,6 +72,8 @@ class Vehicle:
     motor_time_constant: first-order lag of a motor's thrust, s.
     linear_drag: aerodynamic drag on the vehicle, a force ``-linear_drag * v`` (N per m/s, world frame, still air),
         e.g. PX4 SIH's SIH_KDV; the emulator's plant applies it, the controllers and filters do not model it.
+    angular_drag: aerodynamic damping of the rotation, a torque ``-angular_drag * w`` (N m per rad/s, body axes),
+        e.g. PX4 SIH's SIH_KDW; the emulator's plant applies it, the controllers and filters do not model it.
     frame: ``"x"`` (motors at 45 degrees to the roll and pitch axes, the default) or ``"+"`` (motors on the axes).
     hover_throttle: the autopilot's normalized throttle at hover with this load (PX4 MPC_THR_HOVER, ArduPilot
         MOT_THST_HOVER learnt in flight), 0..1, or None (unknown: the autopilot's parameter, or the physical
@@ -91,6 +94,7 @@ class Vehicle:
     motor_thrust_max: float = 4.0
     motor_time_constant: float = 0.02
     linear_drag: float = 0.0
+    angular_drag: float = 0.0
     frame: str = "x"
     hover_throttle: float | None = None
     gains: tuple[tuple[str, float], ...] = ()
@@ -128,7 +132,7 @@ class Vehicle:
                 raise VehicleFileError(f"vehicle {key} must be a finite number > 0, got {value!r}")
         if not (math.isfinite(self.mass_load) and self.mass_load >= 0.0):
             raise VehicleFileError(f"vehicle mass_load must be a finite number >= 0, got {self.mass_load!r}")
-        for key in ("motor_time_constant", "linear_drag"):
+        for key in ("motor_time_constant", "linear_drag", "angular_drag"):
             value = getattr(self, key)
             if not (math.isfinite(value) and value >= 0.0):
                 raise VehicleFileError(f"vehicle {key} must be a finite number >= 0, got {value!r}")
@@ -206,6 +210,7 @@ _TOML_KEYS: dict[tuple[str, str], str] = {
     ("vehicle", "motor_thrust_max_n"): "motor_thrust_max",
     ("vehicle", "motor_time_constant_s"): "motor_time_constant",
     ("vehicle", "linear_drag_n_s_m"): "linear_drag",
+    ("vehicle", "angular_drag_n_m_s_rad"): "angular_drag",
     ("vehicle", "frame"): "frame",
     ("vehicle", "hover_throttle"): "hover_throttle",
     ("load", "mass_kg"): "mass_load",
