@@ -20,7 +20,14 @@ emulator's ``Emulator.truth()`` (sampled at every plant step). Figures, per side
 - ``ground_lpn_std_m``: LOCAL_POSITION_NED standard deviation on the ground, horizontal (per axis, RMS of N and
   E) and vertical;
 - ``hover_lpn_std_m``: the same during the hold; ``hover_truth_std_m``: the truth's standard deviation during the
-  hold (horizontal per axis, vertical): what "truth jitter" means in this table.
+  hold (horizontal per axis, vertical): what "truth jitter" means in this table;
+- ``hover_pos_err_std_h_m``, ``hover_pos_err_tau_s``: the estimate's horizontal position error during the hold
+  and its correlation time, as for the velocity below (a constant offset between the estimate's and the truth's
+  frames does not enter the std);
+- ``hover_vel_err_std_h_m_s``: the estimate's velocity error during the hold, LOCAL_POSITION_NED's velocity minus
+  the truth's (horizontal, per-axis RMS of the N and E standard deviations); ``hover_vel_err_tau_s``: how long it
+  stays correlated (the lag at which its autocorrelation falls below 1/e, mean of N and E): EKF2's velocity error
+  wanders by decimetres per second over seconds in flight, which a controller with velocity feedback flies.
 
 Prints a table with the ratio emulator / PX4 for every figure; ``--json FILE`` writes all of it.
 
@@ -57,8 +64,8 @@ HOVER_THRUST = 0.49  # the SIH vehicle's physical hover thrust (1.0 kg, 4 x 5 N)
 class FlightRecord:
     """What the client saw on the wire (times in the autopilot's time_boot_ms, s; NED)."""
 
-    ground_lpn: list[tuple[float, float, float, float]] = field(default_factory=list)
-    hover_lpn: list[tuple[float, float, float, float]] = field(default_factory=list)
+    ground_lpn: list[tuple[float, ...]] = field(default_factory=list)  # (t, x, y, z, vx, vy, vz), NED
+    hover_lpn: list[tuple[float, ...]] = field(default_factory=list)
     hover_window: tuple[float, float] = (0.0, 0.0)
     step_window: tuple[float, float] = (0.0, 0.0)
     attitude: list[tuple[float, float]] = field(default_factory=list)  # (t, roll) from ATTITUDE
@@ -106,7 +113,7 @@ def fly_script(
                 t_boot[0] = t
                 last_lpn[0] = m
                 if sink is not None:
-                    sink.append((t, m.x, m.y, m.z))
+                    sink.append((t, m.x, m.y, m.z, m.vx, m.vy, m.vz))
             elif typ == "ATTITUDE":
                 t_boot[0] = m.time_boot_ms * 1e-3
                 yaw[0] = m.yaw
@@ -205,15 +212,55 @@ def _std_hv(xyz: np.ndarray) -> tuple[float, float]:
     return float(math.sqrt(0.5 * (s[0] ** 2 + s[1] ** 2))), float(s[2])
 
 
-def figures(rec: FlightRecord, truth_t: np.ndarray, truth_pos: np.ndarray, truth_roll: np.ndarray, step: float):
-    g = np.array([p[1:] for p in rec.ground_lpn])
-    h = np.array([p[1:] for p in rec.hover_lpn])
+def _correlation_time(x: np.ndarray, dt: float) -> float:
+    """The lag (s) at which the autocorrelation of ``x`` (sampled every ``dt`` s) first falls below 1/e."""
+    x = x - np.mean(x)
+    v = float(np.dot(x, x))
+    if len(x) < 3 or v == 0.0:
+        return math.nan
+    for k in range(1, len(x) - 1):
+        if float(np.dot(x[:-k], x[k:])) / v < math.exp(-1.0):
+            return k * dt
+    return math.nan
+
+
+def _estimate_error(
+    lpn: list[tuple[float, ...]], truth_t: np.ndarray, truth: np.ndarray, column: int
+) -> tuple[float, float]:
+    """(horizontal error std, its correlation time) of LOCAL_POSITION_NED's N and E fields from ``column`` on
+    (1: position, 4: velocity) against the truth's, on a 20 ms grid over the samples' span (m or m/s, s; NED)."""
+    if len(lpn) < 20:
+        return math.nan, math.nan
+    a = np.array(lpn)
+    grid = np.arange(a[0, 0], a[-1, 0], 0.02)
+    err = [np.interp(grid, a[:, 0], a[:, column + i]) - np.interp(grid, truth_t, truth[:, i]) for i in range(2)]
+    std = math.sqrt(0.5 * (float(np.var(err[0])) + float(np.var(err[1]))))
+    return std, 0.5 * (_correlation_time(err[0], 0.02) + _correlation_time(err[1], 0.02))
+
+
+def figures(
+    rec: FlightRecord,
+    truth_t: np.ndarray,
+    truth_pos: np.ndarray,
+    truth_roll: np.ndarray,
+    step: float,
+    truth_vel: np.ndarray | None = None,
+):
+    """The table's figures from what the client saw and the truth (NED, m, m/s; ``truth_vel`` None: no velocity
+    error figures)."""
+    g = np.array([p[1:4] for p in rec.ground_lpn])
+    h = np.array([p[1:4] for p in rec.hover_lpn])
     w = rec.hover_window
     sel = (truth_t >= w[0]) & (truth_t <= w[1])
     out: dict[str, float] = {}
     out["ground_lpn_std_h_m"], out["ground_lpn_std_v_m"] = _std_hv(g)
     out["hover_lpn_std_h_m"], out["hover_lpn_std_v_m"] = _std_hv(h)
     out["hover_truth_std_h_m"], out["hover_truth_std_v_m"] = _std_hv(truth_pos[sel])
+    if truth_vel is not None:
+        out["hover_vel_err_std_h_m_s"], out["hover_vel_err_tau_s"] = _estimate_error(
+            rec.hover_lpn, truth_t, truth_vel, 4
+        )
+    out["hover_pos_err_std_h_m"], out["hover_pos_err_tau_s"] = _estimate_error(rec.hover_lpn, truth_t, truth_pos, 1)
     out.update(step_figures(truth_t, truth_roll, rec.step_window, step))
     return out
 
@@ -244,10 +291,11 @@ def run_px4(instance: int, args: argparse.Namespace) -> dict[str, Any]:
     # ULog stamps are µs since PX4's boot, the same clock as MAVLink's time_boot_ms
     tp = lp["timestamp"] * 1e-6
     pos = np.column_stack([lp["x"], lp["y"], lp["z"]])
+    vel = np.column_stack([lp["vx"], lp["vy"], lp["vz"]])
     ta = at["timestamp"] * 1e-6
     q0, q1, q2, q3 = (at[f"q[{i}]"] for i in range(4))
     roll = np.arctan2(2 * (q0 * q1 + q2 * q3), 1 - 2 * (q1 * q1 + q2 * q2))
-    fig = figures(rec, tp, pos, np.interp(tp, ta, roll), args.step)
+    fig = figures(rec, tp, pos, np.interp(tp, ta, roll), args.step, vel)
     fig.update(_attitude_figures(rec, args.step))
     return {"figures": fig, "notes": rec.notes, "ulog": str(ulogs[-1])}
 
@@ -269,7 +317,7 @@ def run_emulator(args: argparse.Namespace) -> dict[str, Any]:
     cfg = EmulatorConfig(
         flavor="px4", vehicle=args.vehicle, mavlink=(f"udpout:127.0.0.1:{port}",), seed=args.seed, ekf=args.ekf
     )
-    samples: list[tuple[float, float, float, float, float]] = []
+    samples: list[tuple[float, ...]] = []
     running = start_emulator(cfg)
     emu = running.emulator
 
@@ -277,7 +325,7 @@ def run_emulator(args: argparse.Namespace) -> dict[str, Any]:
         while not stop.is_set():
             tr = emu.truth()
             n, e, d = model_to_ned_vector(*tr.position_m)
-            samples.append((tr.time_s, n, e, d, tr.euler_rad[0]))
+            samples.append((tr.time_s, n, e, d, tr.euler_rad[0], *model_to_ned_vector(*tr.velocity_m_s)))
             time.sleep(0.002)
 
     stop = threading.Event()
@@ -298,7 +346,7 @@ def run_emulator(args: argparse.Namespace) -> dict[str, Any]:
         running.stop()
     s = np.array(samples)
     # the model's roll (FLU about x forward) equals the NED roll (FRD about x forward)
-    fig = figures(rec, s[:, 0], s[:, 1:4], s[:, 4], args.step)
+    fig = figures(rec, s[:, 0], s[:, 1:4], s[:, 4], args.step, s[:, 5:8])
     fig.update(_attitude_figures(rec, args.step))
     return {"figures": fig, "notes": rec.notes}
 
@@ -324,6 +372,10 @@ ROWS = (
     ("hover_lpn_std_v_m", "LOCAL_POSITION_NED std in Hold, vertical, m"),
     ("hover_truth_std_h_m", "truth std in Hold (jitter), horizontal, m"),
     ("hover_truth_std_v_m", "truth std in Hold (jitter), vertical, m"),
+    ("hover_pos_err_std_h_m", "position error in Hold (estimate - truth), horizontal, m"),
+    ("hover_pos_err_tau_s", "position error's correlation time in Hold, s"),
+    ("hover_vel_err_std_h_m_s", "velocity error in Hold (estimate - truth), horizontal, m/s"),
+    ("hover_vel_err_tau_s", "velocity error's correlation time in Hold, s"),
 )
 
 
