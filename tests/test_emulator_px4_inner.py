@@ -191,9 +191,11 @@ def test_config_validates_and_truth_is_a_typed_copy() -> None:
 
 def test_ekf_error_tilt_wanders_in_the_air_gyro_noise_is_sihs_and_position_draws_are_unchanged() -> None:
     """The px4-sih preset's attitude estimate error (roll / pitch Gauss-Markov, in the air) and gyro noise (SIH's,
-    per sample) have their own generators: the position error is the same draw with and without them."""
-    spec = EKF_PRESETS["px4-sih"]
-    assert spec is not None and spec.tilt_sigma_rad[0] > 0.0 and spec.gyro_sigma_rad_s == (0.14, 0.07, 0.03)
+    per sample) have their own generators: with the tilt's leak into the velocity off (tested on its own below),
+    the position error is the same draw with and without them."""
+    preset = EKF_PRESETS["px4-sih"]
+    assert preset is not None and preset.tilt_sigma_rad[0] > 0.0 and preset.gyro_sigma_rad_s == (0.14, 0.07, 0.03)
+    spec = replace(preset, tilt_leak=0.0)
     quiet = replace(spec, tilt_sigma_rad=(0.0, 0.0), gyro_sigma_rad_s=(0.0, 0.0, 0.0))
 
     def run(s, on_ground: bool, n: int = 20000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -217,6 +219,38 @@ def test_ekf_error_tilt_wanders_in_the_air_gyro_noise_is_sihs_and_position_draws
     assert float(np.corrcoef(r[:-lag], r[lag:])[0, 1]) > 0.3
     ground, _, _ = run(spec, True, 1000)
     assert not ground.any()  # no driving noise on the ground (it relaxes from zero to zero)
+
+
+def test_ekf_error_tilt_leaks_gravity_into_the_velocity_in_the_world_axis_the_heading_gives() -> None:
+    """``tilt_leak`` 1: a held roll / pitch estimate error ``d`` makes the velocity error grow as ``g d`` (EKF2
+    rotates the measured specific force with its own attitude), in the world axis the heading turns it to (model
+    frame NWU: pitch error (nose down, +) leaks along the nose, roll error (right side down, +) to the right); 0:
+    none. The GPS is made far away in time, so the first second is the leak alone."""
+    spec = replace(
+        EKF_PRESETS["px4-sih"],  # type: ignore[arg-type]
+        tilt_sigma_rad=(0.0, 0.0),
+        accel_sigma_m_s2=0.0,
+        gps_hz=1e-3,
+        tilt_leak=1.0,
+    )
+    g, d = 9.80665, 0.02
+
+    def velocity_after_1s(s, tilt: tuple[float, float], yaw: float) -> tuple[float, float, float]:
+        e = EkfError(s, np.random.default_rng(1))
+        e.step(0.01, (0.0, 0.0, 2.0), False, yaw=yaw)  # the first step fuses the one GPS sample
+        e.ev = [0.0, 0.0, 0.0]
+        e.tilt = list(tilt)
+        for _ in range(100):
+            e.step(0.01, (0.0, 0.0, 2.0), False, yaw=yaw)
+        return e.velocity_error()
+
+    # pitch error at yaw 0: along +x (north, the nose); at yaw 90 deg (nose west, +y)
+    assert velocity_after_1s(spec, (0.0, d), 0.0) == pytest.approx((g * d, 0.0, 0.0), abs=1e-9)
+    assert velocity_after_1s(spec, (0.0, d), math.pi / 2) == pytest.approx((0.0, g * d, 0.0), abs=1e-9)
+    # roll error at yaw 0: toward -y (the right side, east); at yaw 90 deg toward +x (north)
+    assert velocity_after_1s(spec, (d, 0.0), 0.0) == pytest.approx((0.0, -g * d, 0.0), abs=1e-9)
+    assert velocity_after_1s(spec, (d, 0.0), math.pi / 2) == pytest.approx((g * d, 0.0, 0.0), abs=1e-9)
+    assert velocity_after_1s(replace(spec, tilt_leak=0.0), (d, d), 0.3) == pytest.approx((0.0, 0.0, 0.0), abs=1e-12)
 
 
 def test_the_px4_autopilot_flies_and_reports_the_estimated_tilt() -> None:

@@ -3,22 +3,20 @@
 A real autopilot's estimate (PX4's EKF2 fusing GPS, baro, magnetometer and IMU) is not the truth plus white
 noise: its error wanders over seconds (GPS random walk and the filter's own dynamics), the velocity error goes
 with it, and the local frame's origin is where the estimator started, not the ground (PX4 SITL's SIH: the ground
-sat between about -0.8 and +0.6 m local z). This module models that, per axis, as a second-order Gauss-Markov
-process: a velocity error ``v`` (first-order, time constant ``tau_v``) integrated into a position error ``e`` that
-decays with ``tau_p``::
-
-    v' = -v / tau_v + w,      e' = v - e / tau_p
-
-scaled so that ``e`` has the standard deviation ``sigma`` (its velocity then has ``sigma sqrt((tau_p + tau_v) /
-(tau_p^2 tau_v))``), plus, in the air, a white noise on the height (PX4's EKF2 fuses zero velocity while landed,
-so its height scatters by millimetres on the ground and by centimetres in flight, where the barometer drives it).
+sat between about -0.8 and +0.6 m local z). This module models that per axis as a small estimator of its own: a
+prediction that integrates the true acceleration plus accelerometer noise and, in the horizontal, the gravity
+its attitude estimate's tilt error leaks (``tilt_leak``: EKF2 rotates the measured specific force with its own
+attitude, so a tilt error ``d`` reads as an acceleration ``g d``), corrected at the GPS rate by a Gauss-Markov
+GPS noise (optionally delayed) with fixed position and velocity gains. What comes out is the error: estimate
+minus truth. In the air a white noise is added to the height (PX4's EKF2 fuses zero velocity while landed, so its
+height scatters by millimetres on the ground and by centimetres in flight, where the barometer drives it).
 Everything the autopilot does with its position (its own hold, take-off, landing, position setpoints) uses the
 estimate, as a real one does. Its attitude loops fly an attitude estimate whose roll and pitch wander about the
 truth (first-order Gauss-Markov, ``tilt_sigma_rad``: a behavioural stand-in for EKF2's tilt error, not its
-mechanism), and (PX4) a gyro with the preset's white noise (``gyro_sigma_rad_s``: SIH's); with both, the truth's
-step response jitters about its top as PX4 SITL's does (docs/emulator.md, calibration). Not modelled: the heading
-error (PX4 SITL's EKF2 was off the truth by 1.4-2.3 deg of tilt and 10-16 deg of heading in hovers on a loaded
-machine, ``docs/model.md`` section 12.2).
+mechanism; the velocity prediction leaks this same error), and (PX4) a gyro with the preset's white noise
+(``gyro_sigma_rad_s``: SIH's); with both, the truth's step response jitters about its top as PX4 SITL's does
+(docs/emulator.md, calibration). Not modelled: the heading error (PX4 SITL's EKF2 was off the truth by 1.4-2.3
+deg of tilt and 10-16 deg of heading in hovers on a loaded machine, ``docs/model.md`` section 12.2).
 
 The ground's local z (``ground_local_z_m``, NED, m) is drawn once, uniform in ``origin_z_range_m``; it shifts
 LOCAL_POSITION_NED, ODOMETRY, HOME_POSITION and SET_POSITION_TARGET_LOCAL_NED's z and nothing else (heights
@@ -33,6 +31,9 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+
+#: m/s^2, the gravity the estimate's tilt error leaks into its velocity prediction
+STANDARD_GRAVITY = 9.80665
 
 
 @dataclass(frozen=True)
@@ -52,7 +53,11 @@ class EkfErrorSpec:
     on the ground it relaxes to zero with the same time constants); air_gps_sigma_h_m: the horizontal GPS noise in
     the air (1 sigma, m; 0: ``gps_sigma_m``'s on the ground and in the air alike), a behavioural stand-in for
     EKF2's horizontal error being larger in flight than at rest (PX4 SITL: 0.054-0.080 m of scatter on the ground,
-    0.18-0.28 m in Hold).
+    0.18-0.28 m in Hold); tilt_leak: how much of gravity the attitude estimate's tilt error puts into the velocity
+    prediction (1: all of it, as in EKF2, which rotates the accelerometer's specific force with its own attitude:
+    a tilt error ``d`` makes it believe in a horizontal acceleration ``g d`` the vehicle does not have, and its
+    attitude loop, flying that estimate, gives the truth the opposite; 0: the prediction integrates the true
+    acceleration).
     """
 
     gps_sigma_m: tuple[float, float]
@@ -69,6 +74,7 @@ class EkfErrorSpec:
     tilt_sigma_rad: tuple[float, float] = (0.0, 0.0)
     tilt_tau_s: tuple[float, float] = (1.0, 1.0)
     air_gps_sigma_h_m: float = 0.0
+    tilt_leak: float = 0.0
 
 
 #: Presets of ``--ekf``: ``none`` reports the truth; ``px4-sih`` behaves as PX4 SITL's SIH + EKF2 did
@@ -140,10 +146,11 @@ class EkfError:
         s = self.spec.gyro_sigma_rad_s
         return (s[0] * float(z[0]), s[1] * float(z[1]), s[2] * float(z[2]))
 
-    def step(self, dt: float, pos: tuple[float, float, float], on_ground: bool = False) -> None:
+    def step(self, dt: float, pos: tuple[float, float, float], on_ground: bool = False, yaw: float = 0.0) -> None:
         """Advance ``dt`` s; ``pos``: the true position now (model frame, m); ``on_ground``: landed (no height
-        noise). The prediction integrates the true acceleration plus accelerometer noise, so only the noise and the
-        GPS corrections create error."""
+        noise); ``yaw``: the true heading (rad, model frame), which turns the tilt error into the world frame. The
+        prediction integrates the true acceleration plus accelerometer noise and (``tilt_leak``) the gravity its tilt
+        error leaks, so only these and the GPS corrections create error."""
         sp = self.spec
         if self._tilt_rng is not None:
             z = self._tilt_rng.standard_normal(2)
@@ -157,8 +164,17 @@ class EkfError:
         t = self._t
         sa = sp.accel_sigma_m_s2
         za = self.rng.standard_normal(3)
+        leak = (0.0, 0.0)
+        if sp.tilt_leak > 0.0:
+            # the estimate's body up axis, tilted by (roll, pitch) error d about the true attitude (small angles,
+            # near level: ZYX Euler, model frame FLU / NWU), gives gravity a horizontal part g (d_pitch, -d_roll),
+            # turned by the heading into the world
+            gl = STANDARD_GRAVITY * sp.tilt_leak
+            c, s = math.cos(yaw), math.sin(yaw)
+            dr, dp = self.tilt
+            leak = (gl * (dp * c + dr * s), gl * (dp * s - dr * c))
         for i in range(3):
-            self.ev[i] += sa * float(za[i]) * dt
+            self.ev[i] += (sa * float(za[i]) + (leak[i] if i < 2 else 0.0)) * dt
             self.e[i] += self.ev[i] * dt
         self._hist.append((t, pos))
         dmax = max(sp.gps_delay_s)

@@ -146,7 +146,7 @@ class TelemetryStreams:
         self.x_true = x
         if self.ekf is not None:
             if self.k % 10 == 0:  # the error wanders over seconds: 100 Hz is plenty
-                self.ekf.step(10 * self.dt, (x[0], x[1], x[2]), on_ground)
+                self.ekf.step(10 * self.dt, (x[0], x[1], x[2]), on_ground, yaw=x[8])
             self.x = self._believed(x)
         else:
             self.x = x
