@@ -195,6 +195,7 @@ def test_ekf_error_tilt_wanders_in_the_air_gyro_noise_is_sihs_and_position_draws
     the position error is the same draw with and without them."""
     preset = EKF_PRESETS["px4-sih"]
     assert preset is not None and preset.tilt_sigma_rad[0] > 0.0 and preset.gyro_sigma_rad_s == (0.14, 0.07, 0.03)
+    assert preset.tilt_leak == 1.0
     spec = replace(preset, tilt_leak=0.0)
     quiet = replace(spec, tilt_sigma_rad=(0.0, 0.0), gyro_sigma_rad_s=(0.0, 0.0, 0.0))
 
