@@ -23,7 +23,8 @@ emulator's ``Emulator.truth()`` (sampled at every plant step). Figures, per side
   hold (horizontal per axis, vertical): what "truth jitter" means in this table;
 - ``hover_pos_err_std_h_m``, ``hover_pos_err_tau_s``: the estimate's horizontal position error during the hold
   and its correlation time, as for the velocity below (a constant offset between the estimate's and the truth's
-  frames does not enter the std);
+  frames does not enter the std); ``hover_pos_err_std_v_m``, ``hover_vel_err_std_v_m_s``: the same for the height
+  and the vertical velocity;
 - ``hover_vel_err_std_h_m_s``: the estimate's velocity error during the hold, LOCAL_POSITION_NED's velocity minus
   the truth's (horizontal, per-axis RMS of the N and E standard deviations); ``hover_vel_err_tau_s``: how long it
   stays correlated (the lag at which its autocorrelation falls below 1/e, mean of N and E): EKF2's velocity error
@@ -238,6 +239,15 @@ def _estimate_error(
     return std, 0.5 * (_correlation_time(err[0], 0.02) + _correlation_time(err[1], 0.02))
 
 
+def _vertical_error(lpn: list[tuple[float, ...]], truth_t: np.ndarray, truth: np.ndarray, column: int) -> float:
+    """The std of LOCAL_POSITION_NED's D field ``column`` (3: z, 6: vz) minus the truth's (m or m/s; NED)."""
+    if len(lpn) < 20:
+        return math.nan
+    a = np.array(lpn)
+    grid = np.arange(a[0, 0], a[-1, 0], 0.02)
+    return float(np.std(np.interp(grid, a[:, 0], a[:, column]) - np.interp(grid, truth_t, truth[:, 2])))
+
+
 def figures(
     rec: FlightRecord,
     truth_t: np.ndarray,
@@ -261,6 +271,9 @@ def figures(
             rec.hover_lpn, truth_t, truth_vel, 4
         )
     out["hover_pos_err_std_h_m"], out["hover_pos_err_tau_s"] = _estimate_error(rec.hover_lpn, truth_t, truth_pos, 1)
+    out["hover_pos_err_std_v_m"] = _vertical_error(rec.hover_lpn, truth_t, truth_pos, 3)
+    if truth_vel is not None:
+        out["hover_vel_err_std_v_m_s"] = _vertical_error(rec.hover_lpn, truth_t, truth_vel, 6)
     out.update(step_figures(truth_t, truth_roll, rec.step_window, step))
     return out
 
@@ -374,6 +387,8 @@ ROWS = (
     ("hover_truth_std_v_m", "truth std in Hold (jitter), vertical, m"),
     ("hover_pos_err_std_h_m", "position error in Hold (estimate - truth), horizontal, m"),
     ("hover_pos_err_tau_s", "position error's correlation time in Hold, s"),
+    ("hover_pos_err_std_v_m", "height error in Hold (estimate - truth), m"),
+    ("hover_vel_err_std_v_m_s", "vertical velocity error in Hold (estimate - truth), m/s"),
     ("hover_vel_err_std_h_m_s", "velocity error in Hold (estimate - truth), horizontal, m/s"),
     ("hover_vel_err_tau_s", "velocity error's correlation time in Hold, s"),
 )

@@ -134,22 +134,42 @@ def test_ekf_error_origin_offset_and_wander_are_seeded() -> None:
 def test_ekf_error_height_scatters_in_the_air_not_on_the_ground() -> None:
     """PX4's EKF2 height: millimetres while landed, centimetres in the air (docs/emulator.md calibration); the white
     height noise has its own generator, so the wandering error is the same draw with and without it."""
-    spec = EKF_PRESETS["px4-sih"]
-    assert spec is not None and spec.air_white_v_m > 0.0
+    preset = EKF_PRESETS["px4-sih"]
+    assert preset is not None and preset.air_white_v_m > 0.0
+    spec = replace(preset, air_height_sigma_m=0.0)  # the fused height's noise: the next test
     quiet = replace(spec, air_white_v_m=0.0)
 
-    def heights(s, on_ground: bool) -> np.ndarray:
-        e = EkfError(s, np.random.default_rng(3))
-        out = []
-        for _ in range(2000):
-            e.step(0.01, (0.0, 0.0, 2.0), on_ground)
-            out.append(e.position_error()[2])
-        return np.array(out)
-
-    ground, air, air_quiet = heights(spec, True), heights(spec, False), heights(quiet, False)
-    assert np.array_equal(ground, heights(quiet, True))  # on the ground the white noise is off, same draws
+    ground, air, air_quiet = _heights(spec, True), _heights(spec, False), _heights(quiet, False)
+    assert np.array_equal(ground, _heights(quiet, True))  # on the ground the white noise is off, same draws
     assert float(np.std(ground)) < 0.02
     assert float(np.std(air - air_quiet)) == pytest.approx(spec.air_white_v_m, rel=0.1)
+
+
+def _heights(s, on_ground: bool, n: int = 2000, seed: int = 3) -> np.ndarray:
+    """The height error (m) of an estimator of spec ``s`` at rest 2 m up, every 10 ms for ``n`` steps."""
+    e = EkfError(s, np.random.default_rng(seed))
+    out = []
+    for _ in range(n):
+        e.step(0.01, (0.0, 0.0, 2.0), on_ground)
+        out.append(e.position_error()[2])
+    return np.array(out)
+
+
+def test_ekf_error_fused_height_noise_wanders_in_the_air_only() -> None:
+    """px4-sih's ``air_height_sigma_m`` (the barometer EKF2 fuses in flight, SIH's white at 10 Hz): white on the
+    measurement, the estimator's filtering makes it a height error that wanders over about a second (PX4 SITL's
+    EKF2 in Hold: 0.056 m over 1.4 s); on the ground it is off and the draws are those without it."""
+    preset = EKF_PRESETS["px4-sih"]
+    assert preset is not None and preset.air_height_sigma_m == 0.1
+    spec = replace(preset, air_white_v_m=0.0)  # the reported height's white noise: the test above
+    quiet = replace(spec, air_height_sigma_m=0.0)
+    assert np.array_equal(_heights(spec, True, 20000), _heights(quiet, True, 20000))
+    air, air_quiet = _heights(spec, False, 20000), _heights(quiet, False, 20000)
+    fused = air - air_quiet  # what the fused noise adds (the estimator is linear in its inputs)
+    assert 0.03 < float(np.std(fused)) < 0.08 and float(np.std(air_quiet)) < 0.02
+    r = fused - fused.mean()
+    lag = 50  # 0.5 s: far beyond one GPS sample (0.2 s), so the correlation is the filter's, not the noise's
+    assert float(np.corrcoef(r[:-lag], r[lag:])[0, 1]) > 0.4
 
 
 def test_ekf_error_horizontal_gps_noise_is_larger_in_the_air() -> None:

@@ -57,7 +57,9 @@ class EkfErrorSpec:
     prediction (1: all of it, as in EKF2, which rotates the accelerometer's specific force with its own attitude:
     a tilt error ``d`` makes it believe in a horizontal acceleration ``g d`` the vehicle does not have, and its
     attitude loop, flying that estimate, gives the truth the opposite; 0: the prediction integrates the true
-    acceleration).
+    acceleration); air_height_sigma_m: in the air, a white noise (1 sigma, m, a new draw per GPS sample) on the
+    height measurement the estimator fuses, a stand-in for the barometer EKF2 fuses in flight (SIH's: 0.06 m white
+    at 10 Hz), which the estimator's own filtering turns into a height error that wanders over a second or two.
     """
 
     gps_sigma_m: tuple[float, float]
@@ -75,6 +77,7 @@ class EkfErrorSpec:
     tilt_tau_s: tuple[float, float] = (1.0, 1.0)
     air_gps_sigma_h_m: float = 0.0
     tilt_leak: float = 0.0
+    air_height_sigma_m: float = 0.0
 
 
 #: Presets of ``--ekf``: ``none`` reports the truth; ``px4-sih`` behaves as PX4 SITL's SIH + EKF2 did
@@ -95,7 +98,12 @@ EKF_PRESETS: dict[str, EkfErrorSpec | None] = {
         gain_v=(0.16, 0.2),
         accel_sigma_m_s2=0.05,
         origin_z_range_m=(-0.8, 0.6),
-        air_white_v_m=0.06,  # PX4 SITL's height in Hold scattered 0.064-0.090 m, 3 mm on the ground
+        # in the air, the barometer EKF2 fuses (SIH's: white, 0.06 m at 10 Hz) as a white noise on the fused height,
+        # and a white noise on the reported one: PX4 SITL's Hold, 4 Dec 2026, height truth jitter 0.112-0.114 m,
+        # LOCAL_POSITION_NED scatter 0.076 m, vertical velocity error 0.084 m/s; 3-4 mm on the ground (without the
+        # fused noise the emulated truth jitter was half PX4's, 0.051-0.057 m)
+        air_height_sigma_m=0.1,
+        air_white_v_m=0.05,
         reported_accuracy_m=(0.29, 0.03),  # PX4 SITL's ESTIMATOR_STATUS in hover: 0.286-0.293 m, 0.029-0.033 m
         # SIH's gyro noise in flight (its sensor model: 0.14, 0.07, 0.03 rad/s per 250 Hz sample); PX4's
         # vehicle_angular_velocity minus the truth scattered 0.083 / 0.041 / 0.017 rad/s after the 40 Hz filter
@@ -142,11 +150,14 @@ class EkfError:
         self._t = 0.0
         self._next_gps = 0.0
         self._white_v = 0.0  # the height's white noise now (0 on the ground)
-        #: its own generator, so that the estimator's draws are the same with and without it
-        self._white_rng = rng.spawn(1)[0] if spec.air_white_v_m > 0.0 else None
-        self._gyro_rng = rng.spawn(1)[0] if any(v > 0.0 for v in spec.gyro_sigma_rad_s) else None
-        self._tilt_rng = rng.spawn(1)[0] if any(v > 0.0 for v in spec.tilt_sigma_rad) else None
+        # each noise has its own generator, spawned whether it is used or not: the estimator's draws, and each
+        # noise's, are then the same whichever of the others a spec turns on
+        white, gyro, tilt, height = rng.spawn(4)
+        self._white_rng = white if spec.air_white_v_m > 0.0 else None
+        self._gyro_rng = gyro if any(v > 0.0 for v in spec.gyro_sigma_rad_s) else None
+        self._tilt_rng = tilt if any(v > 0.0 for v in spec.tilt_sigma_rad) else None
         self.tilt = [0.0, 0.0]  # the attitude estimate's roll and pitch error, rad (model frame Euler angles)
+        self._height_rng = height if spec.air_height_sigma_m > 0.0 else None
 
     def gyro_noise_frd(self) -> tuple[float, float, float]:
         """A new draw of the gyro's white noise (body FRD, rad/s; zeros without one), one per gyro sample."""
@@ -210,10 +221,13 @@ class EkfError:
         sigma = self.gps_sigma
         if not on_ground and sp.air_gps_sigma_h_m > 0.0:
             sigma = (sp.air_gps_sigma_h_m, sp.air_gps_sigma_h_m, sigma[2])
+        height_noise = 0.0
+        if self._height_rng is not None and not on_ground:
+            height_noise = sp.air_height_sigma_m * float(self._height_rng.standard_normal())
         for i in range(3):
             self.gps_noise[i] = a * self.gps_noise[i] + q * sigma[i] * float(zg[i])
             est = pos[i] + self.e[i]
-            resid = old[i] + self.gps_noise[i] - est
+            resid = old[i] + self.gps_noise[i] + (height_noise if i == 2 else 0.0) - est
             self.e[i] += self.kp[i] * resid
             self.ev[i] += self.kv[i] * resid
 
