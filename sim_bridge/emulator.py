@@ -48,11 +48,10 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from estimators.model.rotations import body_rates
 from estimators.model.vehicle import Vehicle
 from sim_bridge.autopilot import SETPOINT_IDS, Autopilot
 from sim_bridge.emulator_api import EmulatorTruth
-from sim_bridge.plant.dynamics import make_state, plant_params, rk4_step, tension
+from sim_bridge.plant.dynamics import apply_drag, make_state, plant_params, rk4_step, tension
 from sim_bridge.protocol.link import Link
 
 log = logging.getLogger(__name__)
@@ -210,13 +209,8 @@ class Emulator:
                 self._apply_disturbance(u)
             if log is not None:  # the disturbance alone (slots 4-6 also carry the drag of the last step)
                 log.append((self.t_us, (*self.dist_force, *u[7:13])))
-            if drag > 0.0:  # still air: the drag of the velocity at the step's start, held over the 1 ms step
-                fd = self.dist_force
-                u[4], u[5], u[6] = fd[0] - drag * x[3], fd[1] - drag * x[4], fd[2] - drag * x[5]
-            if kdw > 0.0:  # SIH's angular damping on the body rates at the step's start, held over the step
-                wx, wy, wz = body_rates(x[6], x[7], x[9], x[10], x[11])
-                td = self.dist_torque
-                u[10], u[11], u[12] = td[0] - kdw * wx, td[1] - kdw * wy, td[2] - kdw * wz
+            if drag > 0.0 or kdw > 0.0:  # still air, SIH's drag and angular damping at the step's start
+                apply_drag(u, x, (*self.dist_force, 0.0, 0.0, 0.0, *self.dist_torque), drag, kdw)
             if self.on_ground:
                 if thrust > weight * 1.0001:
                     self.on_ground = False

@@ -56,6 +56,25 @@ def test_batched_path_equals_the_scalar_path(tmp_path: Path, switching: str) -> 
         assert ref.column("alpha").max() > 0.05  # the runs swing: the comparison is not of two resting states
 
 
+def test_batched_path_with_drag_equals_the_scalar_path(tmp_path: Path) -> None:
+    """Three drawn runs on vehicles with still-air drag (each its own SIH_KDV / SIH_KDW, one without) advanced
+    together: the trajectories of ``offboard.harness.sim.run`` on each, to 1e-9, and the drag is felt."""
+    from dataclasses import replace
+
+    cfg = sweep.load_config(_short_file(tmp_path))
+    params = smc.ControllerParams.for_vehicle(V)
+    draws = [sweep.draw(cfg, r, V) for r in range(3)]
+    drags = ((1.0, 0.025), (0.0, 0.0), (0.4, 0.0))
+    vehicles = [replace(sweep.plant_vehicle(V, d), linear_drag=k, angular_drag=kw) for d, (k, kw) in zip(draws, drags)]
+    scs = [sweep.scenario(cfg, d) for d in draws]
+    log = batched.simulate(scs, vehicles, params)
+    for b in range(3):
+        ref = sim.run(scs[b], vehicles[b], params, SimConfig())
+        np.testing.assert_allclose(log["x"][:, :, b], ref.data[:, 1:19], rtol=0.0, atol=1e-9)
+    calm = sim.run(scs[0], replace(vehicles[0], linear_drag=0.0, angular_drag=0.0), params, SimConfig())
+    assert np.abs(calm.data[:, 1:19] - log["x"][:, :, 0]).max() > 1e-3  # the first run's drag changed its flight
+
+
 def test_batched_path_with_the_filter_equals_the_scalar_path(tmp_path: Path) -> None:
     """Three drawn runs with the Kalman filter on their drawn sensors (noise, latency: records late past the
     filter's horizon are dropped) and the mixer with their drawn motor lags, advanced together: the plant's

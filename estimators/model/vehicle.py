@@ -71,9 +71,10 @@ class Vehicle:
     motor_thrust_max: maximum thrust of one motor, N.
     motor_time_constant: first-order lag of a motor's thrust, s.
     linear_drag: aerodynamic drag on the vehicle, a force ``-linear_drag * v`` (N per m/s, world frame, still air),
-        e.g. PX4 SIH's SIH_KDV; the emulator's plant applies it, the controllers and filters do not model it.
+        e.g. PX4 SIH's SIH_KDV; the plants apply it (the emulator's, ``slung sim`` / compare / sweep's,
+        ``sim_bridge.plant.dynamics.apply_drag``), the controllers and filters do not model it.
     angular_drag: aerodynamic damping of the rotation, a torque ``-angular_drag * w`` (N m per rad/s, body axes),
-        e.g. PX4 SIH's SIH_KDW; the emulator's plant applies it, the controllers and filters do not model it.
+        e.g. PX4 SIH's SIH_KDW; applied and not modelled alike.
     frame: ``"x"`` (motors at 45 degrees to the roll and pitch axes, the default) or ``"+"`` (motors on the axes).
     hover_throttle: the autopilot's normalized throttle at hover with this load (PX4 MPC_THR_HOVER, ArduPilot
         MOT_THST_HOVER learnt in flight), 0..1, or None (unknown: the autopilot's parameter, or the physical

@@ -3,7 +3,7 @@ quantity a numpy array over the runs, the same equations as the scalar path.
 
 - plant: ``sim_bridge.plant.dynamics.derivative`` (paper attitude model, eq. (13)) and ``rk4_step`` with the cable
   projection, written once more over arrays (:func:`derivative`, :func:`rk4_step`), each run with its own masses,
-  cable length and inertia;
+  cable length, inertia and still-air drag (:func:`apply_drag`);
 - controller: the sliding-mode law ``offboard.control.smc.step`` over arrays
   (``offboard.harness.batched_controllers.smc_step``: the same height, yaw and horizontal laws, saturation and
   anti-windup), on the estimator's state (below) with the controller's nominal vehicle;
@@ -44,6 +44,23 @@ class BatchPlant:
         self.Is = np.array([v.inertia[2] for v in vehicles])
         self.Mt = self.M + self.m
         self.inv_l = 1.0 / self.l
+        #: still-air drag (``sim_bridge.plant.dynamics.apply_drag``): N per m/s on the vehicle, N m per rad/s
+        self.linear_drag = np.array([v.linear_drag for v in vehicles])
+        self.angular_drag = np.array([v.angular_drag for v in vehicles])
+        self.has_drag = bool(np.any(self.linear_drag > 0.0) or np.any(self.angular_drag > 0.0))
+
+
+def apply_drag(u: Array, x: Array, base: Array, p: BatchPlant) -> None:
+    """``sim_bridge.plant.dynamics.apply_drag`` over runs, in place: u (13, B), x (18, B), base (9, B) the
+    disturbance alone; a run with a zero coefficient gets ``base``'s slots, as the scalar path leaves them."""
+    u[4:7] = base[0:3] - p.linear_drag * x[3:6]
+    phi, theta = x[6], x[7]
+    sf, cf, st, ct = np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)
+    pr, tr, yr = x[9], x[10], x[11]
+    kdw = p.angular_drag
+    u[10] = base[6] - kdw * (pr - st * yr)
+    u[11] = base[7] - kdw * (cf * tr + sf * ct * yr)
+    u[12] = base[8] - kdw * (-sf * tr + cf * ct * yr)
 
 
 def derivative(x: Array, u: Array, p: BatchPlant) -> Array:
@@ -300,7 +317,8 @@ def simulate(
             t_prev = t
             kf.push_command(lagged[1], lagged[2], lagged[0])
         u[0:4] = uc
-        u[4:13] = gust(t)
+        dist = gust(t)
+        u[4:13] = dist
         log["saturated"] += sat
         r1, r2, r3 = x[12], x[13], x[14]
         alpha = np.arctan2(np.sqrt(r1 * r1 + r2 * r2), -r3)
@@ -325,6 +343,8 @@ def simulate(
         for _ in range(substeps):
             if mixer is not None:
                 u[0:4] = mixer.step()
+            if p.has_drag:
+                apply_drag(u, x, dist, p)
             x = rk4_step(x, u, p, plant_dt)
             tens = tension(x, u, p)
             fig.slack += tens <= 0.0

@@ -31,6 +31,7 @@ from offboard.control.tick import ActuatorLag, ControlTick
 from offboard.logs.estimate_columns import SIGMA_COLUMNS
 from offboard.logs.runlog import COL, LOG_COLUMNS, Disturbance, PlantSetup, ReferenceLike, Scenario, SimConfig, SimLog
 from sim_bridge.plant import dynamics
+from sim_bridge.plant.dynamics import apply_drag
 
 # The run records live in the plant-free ``offboard.logs.runlog`` (the live flight path reads them without loading the
 # simulator); they are re-exported here for the simulation's users.
@@ -175,6 +176,7 @@ def run(
         att_path = Px4AttitudePath(vehicle, config.plant_dt)
         att_path.reset(0.25 * u[0])
         max_tilt = MappingConfig().max_tilt
+    drag = vehicle.linear_drag > 0.0 or vehicle.angular_drag > 0.0
     last_progress = 0
     for tick in range(n_ticks):
         t = tick * control_dt
@@ -207,6 +209,8 @@ def run(
                 u[0:4] = mixer.step()
             elif att_path is not None:
                 u[0:4] = att_path.step(x)
+            if drag:  # the vehicle file's still-air drag (SIH_KDV / SIH_KDW), as the emulator's plant feels it
+                apply_drag(u, x, d, vehicle.linear_drag, vehicle.angular_drag)
             x = rk4(x, u, p, config.plant_dt, t + i * config.plant_dt)
             tens = tension(x, u, p)
             if tens <= 0.0 and p.m > 0.0:  # no load (m = 0): no cable to go slack, the tension is 0 by definition

@@ -27,7 +27,8 @@ index  quantity                           unit
 ====== ================================== =========
 
 Input vector ``u`` (13 floats): thrust (N), torques tau_phi, tau_theta, tau_psi (N m, body axes), external
-force on the vehicle (N, world), external force on the load (N, world), external torque (N m, body axes).
+force on the vehicle (N, world), external force on the load (N, world), external torque (N m, body axes). The
+plants that integrate this model put a vehicle's still-air drag into the external slots (:func:`apply_drag`).
 
 Cable tension (errata E5, with external forces)::
 
@@ -42,7 +43,7 @@ import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
-from estimators.model.rotations import thrust_direction, thrust_direction_trig
+from estimators.model.rotations import body_rates, thrust_direction, thrust_direction_trig
 from estimators.model.vehicle import Vehicle
 
 STATE_SIZE = 18
@@ -219,6 +220,19 @@ def _rigid_body_euler_accel(
     # W^-1 = [[1, S_f T_t, C_f T_t], [0, C_f, -S_f], [0, S_f / C_t, C_f / C_t]]
     tt_ = st / ct
     return (b1 + sf * tt_ * b2 + cf * tt_ * b3, cf * b2 - sf * b3, (sf * b2 + cf * b3) / ct)
+
+
+def apply_drag(u: list[float], x: Sequence[float], base: Sequence[float], linear: float, angular: float) -> None:
+    """In place: ``u``'s external force on the vehicle (slots 4-6) and external torque (slots 10-12) become
+    ``base``'s (the disturbance alone, the nine slots 4-12) plus still-air drag at the state ``x``: a force
+    ``-linear * v`` on the vehicle (N per m/s, world frame; PX4 SIH's SIH_KDV) and a torque ``-angular * w`` (N m
+    per rad/s, body rates from the Euler angles and their rates; SIH_KDW). The caller holds ``u`` over one plant
+    step, so the drag is that of the step's start. A zero coefficient leaves its slots alone."""
+    if linear > 0.0:
+        u[4], u[5], u[6] = base[0] - linear * x[3], base[1] - linear * x[4], base[2] - linear * x[5]
+    if angular > 0.0:
+        wx, wy, wz = body_rates(x[6], x[7], x[9], x[10], x[11])
+        u[10], u[11], u[12] = base[6] - angular * wx, base[7] - angular * wy, base[8] - angular * wz
 
 
 def rk4_step(x: Sequence[float], u: Sequence[float], p: PlantParams, h: float, t: float = 0.0) -> list[float]:
