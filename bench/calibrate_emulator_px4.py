@@ -225,27 +225,20 @@ def _correlation_time(x: np.ndarray, dt: float) -> float:
     return math.nan
 
 
-def _estimate_error(
+def _estimate_errors(
     lpn: list[tuple[float, ...]], truth_t: np.ndarray, truth: np.ndarray, column: int
-) -> tuple[float, float]:
-    """(horizontal error std, its correlation time) of LOCAL_POSITION_NED's N and E fields from ``column`` on
-    (1: position, 4: velocity) against the truth's, on a 20 ms grid over the samples' span (m or m/s, s; NED)."""
+) -> tuple[float, float, float]:
+    """(horizontal error std, its correlation time, vertical error std) of LOCAL_POSITION_NED's N, E, D fields from
+    ``column`` on (1: position, 4: velocity) against the truth's, on a 20 ms grid over the samples' span (m or m/s,
+    s; NED; horizontal: per-axis RMS of N and E, the time the mean of theirs)."""
     if len(lpn) < 20:
-        return math.nan, math.nan
+        return math.nan, math.nan, math.nan
     a = np.array(lpn)
     grid = np.arange(a[0, 0], a[-1, 0], 0.02)
-    err = [np.interp(grid, a[:, 0], a[:, column + i]) - np.interp(grid, truth_t, truth[:, i]) for i in range(2)]
-    std = math.sqrt(0.5 * (float(np.var(err[0])) + float(np.var(err[1]))))
-    return std, 0.5 * (_correlation_time(err[0], 0.02) + _correlation_time(err[1], 0.02))
-
-
-def _vertical_error(lpn: list[tuple[float, ...]], truth_t: np.ndarray, truth: np.ndarray, column: int) -> float:
-    """The std of LOCAL_POSITION_NED's D field ``column`` (3: z, 6: vz) minus the truth's (m or m/s; NED)."""
-    if len(lpn) < 20:
-        return math.nan
-    a = np.array(lpn)
-    grid = np.arange(a[0, 0], a[-1, 0], 0.02)
-    return float(np.std(np.interp(grid, a[:, 0], a[:, column]) - np.interp(grid, truth_t, truth[:, 2])))
+    err = [np.interp(grid, a[:, 0], a[:, column + i]) - np.interp(grid, truth_t, truth[:, i]) for i in range(3)]
+    std_h = math.sqrt(0.5 * (float(np.var(err[0])) + float(np.var(err[1]))))
+    tau_h = 0.5 * (_correlation_time(err[0], 0.02) + _correlation_time(err[1], 0.02))
+    return std_h, tau_h, float(np.std(err[2]))
 
 
 def figures(
@@ -266,14 +259,11 @@ def figures(
     out["ground_lpn_std_h_m"], out["ground_lpn_std_v_m"] = _std_hv(g)
     out["hover_lpn_std_h_m"], out["hover_lpn_std_v_m"] = _std_hv(h)
     out["hover_truth_std_h_m"], out["hover_truth_std_v_m"] = _std_hv(truth_pos[sel])
+    pos_err = _estimate_errors(rec.hover_lpn, truth_t, truth_pos, 1)
+    out["hover_pos_err_std_h_m"], out["hover_pos_err_tau_s"], out["hover_pos_err_std_v_m"] = pos_err
     if truth_vel is not None:
-        out["hover_vel_err_std_h_m_s"], out["hover_vel_err_tau_s"] = _estimate_error(
-            rec.hover_lpn, truth_t, truth_vel, 4
-        )
-    out["hover_pos_err_std_h_m"], out["hover_pos_err_tau_s"] = _estimate_error(rec.hover_lpn, truth_t, truth_pos, 1)
-    out["hover_pos_err_std_v_m"] = _vertical_error(rec.hover_lpn, truth_t, truth_pos, 3)
-    if truth_vel is not None:
-        out["hover_vel_err_std_v_m_s"] = _vertical_error(rec.hover_lpn, truth_t, truth_vel, 6)
+        vel_err = _estimate_errors(rec.hover_lpn, truth_t, truth_vel, 4)
+        out["hover_vel_err_std_h_m_s"], out["hover_vel_err_tau_s"], out["hover_vel_err_std_v_m_s"] = vel_err
     out.update(step_figures(truth_t, truth_roll, rec.step_window, step))
     return out
 

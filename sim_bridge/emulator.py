@@ -210,7 +210,7 @@ class Emulator:
             if log is not None:  # the disturbance alone (slots 4-6 also carry the drag of the last step)
                 log.append((self.t_us, (*self.dist_force, *u[7:13])))
             if drag > 0.0 or kdw > 0.0:  # still air, SIH's drag and angular damping at the step's start
-                apply_drag(u, x, (*self.dist_force, 0.0, 0.0, 0.0, *self.dist_torque), drag, kdw)
+                apply_drag(u, x, self.dist_force, self.dist_torque, drag, kdw)
             if self.on_ground:
                 if thrust > weight * 1.0001:
                     self.on_ground = False

@@ -50,17 +50,18 @@ class BatchPlant:
         self.has_drag = bool(np.any(self.linear_drag > 0.0) or np.any(self.angular_drag > 0.0))
 
 
-def apply_drag(u: Array, x: Array, base: Array, p: BatchPlant) -> None:
-    """``sim_bridge.plant.dynamics.apply_drag`` over runs, in place: u (13, B), x (18, B), base (9, B) the
-    disturbance alone; a run with a zero coefficient gets ``base``'s slots, as the scalar path leaves them."""
-    u[4:7] = base[0:3] - p.linear_drag * x[3:6]
+def apply_drag(u: Array, x: Array, force: Array, torque: Array, p: BatchPlant) -> None:
+    """``sim_bridge.plant.dynamics.apply_drag`` over runs, in place: u (13, B), x (18, B), the disturbance's force
+    on the vehicle and torque alone (3, B) each; a run with a zero coefficient gets the disturbance's, as the
+    scalar path leaves it."""
+    u[4:7] = force - p.linear_drag * x[3:6]
     phi, theta = x[6], x[7]
     sf, cf, st, ct = np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)
     pr, tr, yr = x[9], x[10], x[11]
     kdw = p.angular_drag
-    u[10] = base[6] - kdw * (pr - st * yr)
-    u[11] = base[7] - kdw * (cf * tr + sf * ct * yr)
-    u[12] = base[8] - kdw * (-sf * tr + cf * ct * yr)
+    u[10] = torque[0] - kdw * (pr - st * yr)
+    u[11] = torque[1] - kdw * (cf * tr + sf * ct * yr)
+    u[12] = torque[2] - kdw * (-sf * tr + cf * ct * yr)
 
 
 def derivative(x: Array, u: Array, p: BatchPlant) -> Array:
@@ -340,11 +341,12 @@ def simulate(
             u[0:4] = mixer.wrench()
         if tick == n_ticks - 1:
             break
+        dist_force, dist_torque = dist[0:3], dist[6:9]
         for _ in range(substeps):
             if mixer is not None:
                 u[0:4] = mixer.step()
             if p.has_drag:
-                apply_drag(u, x, dist, p)
+                apply_drag(u, x, dist_force, dist_torque, p)
             x = rk4_step(x, u, p, plant_dt)
             tens = tension(x, u, p)
             fig.slack += tens <= 0.0

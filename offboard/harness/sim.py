@@ -204,13 +204,15 @@ def run(
         data[tick, COL["tension"]] = tens
         if tick == n_ticks - 1:
             break
+        if drag:  # the tick's disturbance on the vehicle alone, which the drag is added to at each plant step
+            d_force, d_torque = d[0:3], d[6:9]
         for i in range(substeps):
             if mixer is not None:  # the motors' thrusts at the end of this plant step act over it (zero-order)
                 u[0:4] = mixer.step()
             elif att_path is not None:
                 u[0:4] = att_path.step(x)
             if drag:  # the vehicle file's still-air drag (SIH_KDV / SIH_KDW), as the emulator's plant feels it
-                apply_drag(u, x, d, vehicle.linear_drag, vehicle.angular_drag)
+                apply_drag(u, x, d_force, d_torque, vehicle.linear_drag, vehicle.angular_drag)
             x = rk4(x, u, p, config.plant_dt, t + i * config.plant_dt)
             tens = tension(x, u, p)
             if tens <= 0.0 and p.m > 0.0:  # no load (m = 0): no cable to go slack, the tension is 0 by definition

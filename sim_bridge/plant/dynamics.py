@@ -222,17 +222,19 @@ def _rigid_body_euler_accel(
     return (b1 + sf * tt_ * b2 + cf * tt_ * b3, cf * b2 - sf * b3, (sf * b2 + cf * b3) / ct)
 
 
-def apply_drag(u: list[float], x: Sequence[float], base: Sequence[float], linear: float, angular: float) -> None:
-    """In place: ``u``'s external force on the vehicle (slots 4-6) and external torque (slots 10-12) become
-    ``base``'s (the disturbance alone, the nine slots 4-12) plus still-air drag at the state ``x``: a force
-    ``-linear * v`` on the vehicle (N per m/s, world frame; PX4 SIH's SIH_KDV) and a torque ``-angular * w`` (N m
-    per rad/s, body rates from the Euler angles and their rates; SIH_KDW). The caller holds ``u`` over one plant
-    step, so the drag is that of the step's start. A zero coefficient leaves its slots alone."""
+def apply_drag(
+    u: list[float], x: Sequence[float], force: Sequence[float], torque: Sequence[float], linear: float, angular: float
+) -> None:
+    """In place: ``u``'s external force on the vehicle (slots 4-6) becomes ``force`` and its external torque (slots
+    10-12) ``torque`` (the disturbance's alone, N world and N m body) plus still-air drag at the state ``x``: a
+    force ``-linear * v`` on the vehicle (N per m/s, world frame; PX4 SIH's SIH_KDV) and a torque ``-angular * w``
+    (N m per rad/s, body rates from the Euler angles and their rates; SIH_KDW). The caller holds ``u`` over one
+    plant step, so the drag is that of the step's start. A zero coefficient leaves its slots alone."""
     if linear > 0.0:
-        u[4], u[5], u[6] = base[0] - linear * x[3], base[1] - linear * x[4], base[2] - linear * x[5]
+        u[4], u[5], u[6] = force[0] - linear * x[3], force[1] - linear * x[4], force[2] - linear * x[5]
     if angular > 0.0:
         wx, wy, wz = body_rates(x[6], x[7], x[9], x[10], x[11])
-        u[10], u[11], u[12] = base[6] - angular * wx, base[7] - angular * wy, base[8] - angular * wz
+        u[10], u[11], u[12] = torque[0] - angular * wx, torque[1] - angular * wy, torque[2] - angular * wz
 
 
 def rk4_step(x: Sequence[float], u: Sequence[float], p: PlantParams, h: float, t: float = 0.0) -> list[float]:
