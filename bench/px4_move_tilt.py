@@ -29,6 +29,8 @@ import sys
 import numpy as np
 from scipy.signal import lfilter
 
+from estimators.model.frames import STANDARD_GRAVITY
+
 
 def _ulog_topics(path: str) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, float]]:
     from pyulog import ULog
@@ -66,7 +68,7 @@ def analyse(base: str) -> str:
     topics, params = _ulog_topics(glob.glob(base + "/px4/log/*/*.ulg")[0])
     t = d["t_vehicle"]
     t0, t1 = float(t[0]), float(t[-1])
-    g = 9.80665
+    g = STANDARD_GRAVITY
     gt, va, lp = (
         topics[k] for k in ("vehicle_attitude_groundtruth", "vehicle_attitude", "vehicle_local_position_groundtruth")
     )

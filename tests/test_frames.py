@@ -143,3 +143,11 @@ def test_wrap_and_bad_quaternion() -> None:
         frames.quaternion_to_euler(0.0, 0.0, 0.0, 0.0)
     with pytest.raises(ValueError):
         frames.quaternion_to_euler(math.nan, 0.0, 0.0, 0.0)
+
+
+def test_milli_g_conversions_are_inverse_and_one_g_is_standard_gravity() -> None:
+    """MAVLink's SCALED_IMU / RAW_IMU accelerations are milli-g: 1000 mG is 9.80665 m/s^2, both ways."""
+    assert frames.milli_g_to_m_s2(1000.0) == pytest.approx(9.80665, abs=1e-12)
+    assert frames.m_s2_to_milli_g(9.80665) == pytest.approx(1000.0, abs=1e-9)
+    for v in (-32768.0, -1.0, 0.0, 0.5, 981.0, 32767.0):
+        assert frames.m_s2_to_milli_g(frames.milli_g_to_m_s2(v)) == pytest.approx(v, abs=1e-9)

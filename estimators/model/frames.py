@@ -15,11 +15,17 @@ x axis, ``P = diag(1, -1, -1)``, so
 - a positive model pitch (thrust tilted toward +x, nose down) is a negative MAVLink pitch (nose down in FRD).
 
 Every conversion is its own inverse; the functions come in named pairs so call sites say which way they go.
+
+Units at the wire: MAVLink's SCALED_IMU / RAW_IMU accelerations are in milli-g of standard gravity
+(``STANDARD_GRAVITY``, 9.80665 m/s^2, the one spelling of it in slung), HIGHRES_IMU's in m/s^2.
 """
 
 from __future__ import annotations
 
 import math
+
+#: m/s^2, standard gravity (CGPM 1901): the "g" of MAVLink's milli-g accelerations and of specific forces in g
+STANDARD_GRAVITY = 9.80665
 
 
 def ned_to_model_vector(x: float, y: float, z: float) -> tuple[float, float, float]:
@@ -89,6 +95,16 @@ def quaternion_to_euler(w: float, x: float, y: float, z: float) -> tuple[float, 
     theta = math.asin(s)
     psi = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
     return (phi, theta, psi)
+
+
+def milli_g_to_m_s2(v: float) -> float:
+    """An acceleration in MAVLink's milli-g (SCALED_IMU / RAW_IMU ``xacc`` ...) -> m/s^2."""
+    return v * STANDARD_GRAVITY * 1e-3
+
+
+def m_s2_to_milli_g(v: float) -> float:
+    """An acceleration in m/s^2 -> MAVLink's milli-g (unrounded; the encoder rounds and clamps to int16)."""
+    return v / STANDARD_GRAVITY * 1e3
 
 
 def _wrap(angle: float) -> float:

@@ -10,6 +10,7 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+from estimators.model.frames import STANDARD_GRAVITY
 from estimators.model.measurements import Attitude, Imu, LoadAngle, PositionVelocity
 from estimators.model.vehicle import Vehicle
 from offboard.logs.log_inventory import (
@@ -19,10 +20,6 @@ from offboard.logs.log_inventory import (
 )
 from offboard.logs.replay_health import HealthMonitor
 from offboard.logs.replay_records import EST_COLUMNS, initial_guess
-
-#: standard gravity (m/s^2), the specific force an accelerometer reads in hover
-G0 = 9.80665
-
 
 #: weight of a new IMU sample in the low-pass of the measured collective (commands unknown, estimation only)
 ACC_LOWPASS = 0.05
@@ -85,7 +82,7 @@ def replay_grid(
     gated = 0.0
     t_init: float | None = None
     k_tick = 0
-    az_lp = G0
+    az_lp = STANDARD_GRAVITY
     thrust = hover_thrust
     n_pos = 0
 
@@ -119,7 +116,7 @@ def replay_grid(
                 last_load = (m.alpha_x, m.alpha_y)
             elif isinstance(m, Imu):  # the collective the vehicle flew: its low-passed specific force along body z
                 az_lp += ACC_LOWPASS * (m.az - az_lp)
-                thrust = hover_thrust * min(2.0, max(0.3, az_lp / G0))
+                thrust = hover_thrust * min(2.0, max(0.3, az_lp / STANDARD_GRAVITY))
             if m.t < t_from or m.t > t_to:
                 continue
             seg = -1

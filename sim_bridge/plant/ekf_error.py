@@ -32,8 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: m/s^2, the gravity the estimate's tilt error leaks into its velocity prediction
-STANDARD_GRAVITY = 9.80665
+from estimators.model.frames import STANDARD_GRAVITY
 
 
 @dataclass(frozen=True)

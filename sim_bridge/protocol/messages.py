@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+from estimators.model.frames import m_s2_to_milli_g
 from sim_bridge.protocol.telemetry import Snapshot
 
 _NAN21 = [float("nan")] + [0.0] * 20
@@ -85,7 +86,7 @@ def msg_highres_imu(mav, s: Snapshot, ctx):
 
 
 def _mg(v: float) -> int:
-    return max(-32768, min(32767, round(v / 9.80665 * 1000.0)))
+    return max(-32768, min(32767, round(m_s2_to_milli_g(v))))
 
 
 def _mrad(v: float) -> int:

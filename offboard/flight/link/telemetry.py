@@ -42,6 +42,7 @@ from typing import Any
 
 from estimators.model.frames import (
     frd_to_model_body,
+    milli_g_to_m_s2,
     ned_euler_to_model,
     ned_quaternion_to_model,
     ned_to_model_vector,
@@ -60,7 +61,6 @@ from estimators.model.measurements import (
 LOAD_ANGLE_NAME = "LOADANG"
 MAV_FRAME_LOCAL_NED = 1
 MAV_FRAME_BODY_FRD = 12
-G0 = 9.80665
 #: IMU message -> rank (lower is preferred; see the module docstring)
 IMU_RANK: dict[str, int] = {"HIGHRES_IMU": 0, "SCALED_IMU": 0, "RAW_IMU": 1, "SCALED_IMU2": 2}
 
@@ -85,6 +85,11 @@ GPS_FIX_3D = 3
 
 def _vehicle_time_ms(ms: int) -> float:
     return ms * 1e-3
+
+
+def _milli_g_acceleration(msg: Any) -> tuple[float, float, float]:
+    """A SCALED_IMU / RAW_IMU message's accelerations (milli-g, FRD) -> model body FLU, m/s^2."""
+    return frd_to_model_body(milli_g_to_m_s2(msg.xacc), milli_g_to_m_s2(msg.yacc), milli_g_to_m_s2(msg.zacc))
 
 
 def _vehicle_time_us(us: int) -> float:
@@ -175,11 +180,11 @@ class TelemetryDecoder:
             gx, gy, gz = frd_to_model_body(msg.xgyro, msg.ygyro, msg.zgyro)
             m = Imu(_vehicle_time_us(msg.time_usec), ax, ay, az, gx, gy, gz)
         elif kind == "SCALED_IMU":
-            ax, ay, az = frd_to_model_body(msg.xacc * G0 * 1e-3, msg.yacc * G0 * 1e-3, msg.zacc * G0 * 1e-3)
+            ax, ay, az = _milli_g_acceleration(msg)
             gx, gy, gz = frd_to_model_body(msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3)
             m = Imu(_vehicle_time_ms(msg.time_boot_ms), ax, ay, az, gx, gy, gz)
         elif kind in ("RAW_IMU", "SCALED_IMU2"):
-            ax, ay, az = frd_to_model_body(msg.xacc * G0 * 1e-3, msg.yacc * G0 * 1e-3, msg.zacc * G0 * 1e-3)
+            ax, ay, az = _milli_g_acceleration(msg)
             gx, gy, gz = frd_to_model_body(msg.xgyro * 1e-3, msg.ygyro * 1e-3, msg.zgyro * 1e-3)
             t = _vehicle_time_us(msg.time_usec) if kind == "RAW_IMU" else _vehicle_time_ms(msg.time_boot_ms)
             m = Imu(t, ax, ay, az, gx, gy, gz)
