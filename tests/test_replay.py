@@ -168,6 +168,24 @@ def test_replay_reproduces_an_attitude_level_law_flight(demo_runs: dict[str, Pat
         np.testing.assert_array_equal(rep[a], live[b], err_msg=f"{a} vs {b}")
     assert m["live_agreement"]["setpoint_identical"] == n
     assert m["setpoint_agreement"]["float32_identical"] == n
+    # without --vehicle: the vehicle the run recorded in its metrics.json (not the paper's), the same law
+    code, m = _replay_cli(run / "flight.tlog", tmp_path / "r-recorded")
+    assert code == 0 and m["live_agreement"]["setpoint_identical"] == n
+
+
+def test_a_recorded_vehicle_that_does_not_read_is_one_line_and_exit_2(
+    demo_runs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "flight.tlog").write_bytes((demo_runs["px4-attitude-sih"] / "flight.tlog").read_bytes())
+    meta = json.loads((demo_runs["px4-attitude-sih"] / "metrics.json").read_text())
+    meta["config"]["vehicle_toml"] = meta["config"]["vehicle_toml"].replace("mass_kg = 1.0", "mass_kg = -1.0", 1)
+    (run / "metrics.json").write_text(json.dumps(meta))
+    capsys.readouterr()
+    assert main(["replay", str(run / "flight.tlog"), "--out", str(tmp_path / "r"), "--no-figures"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--vehicle" in err[0] and "metrics.json" in err[0] and "Traceback" not in err[0], err
 
 
 def test_replay_of_slung_demo_from_the_tlog_alone(demo_runs: dict[str, Path], tmp_path: Path) -> None:

@@ -294,11 +294,17 @@ def load_vehicle(path: str | Path | None) -> Vehicle:
         raise VehicleFileError(
             f"vehicle file {p} is not UTF-8 text (byte {exc.start}: {exc.object[exc.start : exc.start + 1]!r})"
         ) from None
+    return vehicle_from_toml(text, source=str(p))
+
+
+def vehicle_from_toml(text: str, source: str = "vehicle file") -> Vehicle:
+    """A vehicle from the text of a vehicle file (:func:`vehicle_to_toml`'s, or a user's); VehicleFileError
+    naming ``source`` when it is not valid TOML or not a valid vehicle."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise VehicleFileError(f"vehicle file {p} is not valid TOML: {exc}") from None
-    return vehicle_from_mapping(data, source=str(p))
+        raise VehicleFileError(f"vehicle file {source} is not valid TOML: {exc}") from None
+    return vehicle_from_mapping(data, source=source)
 
 
 def vehicle_to_toml(v: Vehicle) -> str:
@@ -328,5 +334,6 @@ __all__ = [
     "load_vehicle",
     "named_vehicles",
     "vehicle_from_mapping",
+    "vehicle_from_toml",
     "vehicle_to_toml",
 ]

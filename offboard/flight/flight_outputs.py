@@ -16,7 +16,7 @@ import numpy as np
 
 from estimators.model.cable import cable_from_planar, planar_swing, swing_amplitude
 from estimators.model.flatness import flat_chain, flat_constants, world_tilt
-from estimators.model.vehicle import Vehicle
+from estimators.model.vehicle import Vehicle, vehicle_to_toml
 from offboard.flight.loop import (
     LIVE_COL,
     LIVE_COLUMNS,
@@ -260,6 +260,8 @@ def write_flight_outputs(
             "estimator": "kf",
             "load_telemetry_seen": result.load_sensor,
             "vehicle": vehicle.name,
+            # the whole vehicle the law and filter were built on: slung replay rebuilds it without --vehicle
+            "vehicle_toml": vehicle_to_toml(vehicle),
             "trajectory": str(Path(args.trajectory).resolve()) if getattr(args, "trajectory", None) else None,
         }
     )

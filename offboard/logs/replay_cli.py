@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from estimators.errors import UserError
-from estimators.model.vehicle import load_vehicle
+from estimators.model.vehicle import Vehicle, VehicleFileError, load_vehicle, vehicle_from_toml
 from offboard.cli_args import add_no_figures_argument, finite_float
 from offboard.control.options import Switching, values
 
@@ -42,7 +42,12 @@ def configure(p: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="flight log: telemetry (.tlog), PX4 ULog (.ulg) or ArduPilot DataFlash (.bin)",
     )
-    p.add_argument("--vehicle", metavar="FILE", help="vehicle description (TOML; default: the paper's Table 1)")
+    p.add_argument(
+        "--vehicle",
+        metavar="FILE",
+        help="vehicle description (TOML file or shipped name; default: the vehicle the run recorded in the "
+        "metrics.json beside the log, else the paper's Table 1)",
+    )
     p.add_argument(
         "--from",
         dest="t_from",
@@ -111,14 +116,26 @@ def run_metadata(tlog: Path) -> dict[str, Any]:
     return data
 
 
+def recorded_vehicle(cfg: dict[str, Any]) -> Vehicle:
+    """The vehicle a live run recorded (``vehicle_toml`` of its ``metrics.json`` config), else the paper's; a
+    recorded one that no longer reads is a UserError (``--vehicle`` then says which to use)."""
+    text = cfg.get("vehicle_toml")
+    if not isinstance(text, str):
+        return Vehicle()
+    try:
+        return vehicle_from_toml(text, source="recorded in the run's metrics.json")
+    except VehicleFileError as exc:
+        raise UserError(f"{exc}: give --vehicle FILE") from None
+
+
 def build_config(args: argparse.Namespace, meta: dict[str, Any], live: Any = None) -> Any:
     """The :class:`offboard.logs.replay.ReplayConfig` from the options, completed by the live run's metadata
     (``metrics.json`` of ``slung fly`` / ``slung demo``: scenario, switching, epsilon, output, mask, autopilot
     model, reference origin, rate) and its tick log ``live`` when present."""
     from offboard.logs.replay import ReferenceSpec, ReplayConfig
 
-    vehicle = load_vehicle(args.vehicle)
     cfg = meta.get("config", {}) if isinstance(meta.get("config"), dict) else {}
+    vehicle = load_vehicle(args.vehicle) if args.vehicle is not None else recorded_vehicle(cfg)
     scenario = args.scenario or meta.get("scenario")
     reference = None
     if scenario is not None:
