@@ -9,6 +9,7 @@ STATUSTEXT, signing checks and the link counters. One autopilot, one file per ro
 - ``autopilot_modes.py``: modes, arming, failsafes, take-off, and what each mode asks of the inner loops;
 - ``autopilot_inner.py``: the inner loops per plant step (PX4: ``sim_bridge/inner/px4_inner.py``; ArduPilot:
   ``sim_bridge/inner/airframe.py``), parameters pushed into them, the estimate the modes fly on;
+- ``autopilot_params.py``: the parameter protocol and ``set_param``;
 - ``autopilot_streams.py``: HEARTBEAT / SYS_STATUS, the stream scheduler, per-step timers, lockstep markers;
 - ``autopilot_constants.py``: MAVLink result / severity codes and helpers they share.
 
@@ -26,9 +27,7 @@ Frames: setpoints arrive in NED / FRD and are converted to the model frame (NWU 
 from __future__ import annotations
 
 import logging
-import math
 import os
-import struct
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -49,7 +48,6 @@ from sim_bridge.autopilot_constants import (
     SETPOINT_IDS,
     SETPOINT_MSGS,
     UNSUPPORTED,
-    WARNING,
     all_finite,
 )
 from sim_bridge.inner.airframe import (
@@ -67,9 +65,10 @@ from sim_bridge.inner.px4_inner import (
     quad_rotors,
 )
 from sim_bridge.modes.autopilot_modes import ModeLogic
-from sim_bridge.modes.flavors import INT8, INT16, INT32, Flavor, Mode, make_flavor
+from sim_bridge.modes.flavors import Flavor, Mode, make_flavor
 from sim_bridge.plant.dynamics import plant_params
 from sim_bridge.plant.ekf_error import EkfError
+from sim_bridge.protocol.autopilot_params import ParameterProtocol
 from sim_bridge.protocol.autopilot_setpoints import SetpointHandlers
 from sim_bridge.protocol.autopilot_streams import TelemetryStreams
 from sim_bridge.protocol.link import Link
@@ -79,7 +78,7 @@ from sim_bridge.protocol.telemetry import Home, TelemetrySource
 log = logging.getLogger(__name__)
 
 
-class Autopilot(ModeLogic, InnerControl, TelemetryStreams, SetpointHandlers):
+class Autopilot(ModeLogic, InnerControl, TelemetryStreams, SetpointHandlers, ParameterProtocol):
     """One emulated autopilot (sysid ``sysid``, compid 1) plus the load's own MAVLink system (sysid ``load_sysid``).
 
     Parameters
@@ -255,21 +254,6 @@ class Autopilot(ModeLogic, InnerControl, TelemetryStreams, SetpointHandlers):
     def _p(self, name: str) -> float:
         return self.params[name].value
 
-    def _param_wire(self, name: str) -> float:
-        """A parameter's value as it travels in PARAM_VALUE.param_value (PX4 ints bytewise, ArduPilot C cast)."""
-        p = self.params[name]
-        if p.ptype in (INT8, INT16, INT32) and self.fl.is_px4:
-            return struct.unpack("<f", struct.pack("<i", int(p.value)))[0]
-        return float(p.value)
-
-    def _send_param(self, name: str) -> None:
-        p = self.params[name]
-        self.mav.send(
-            self.mav.param_value_encode(
-                name.encode(), self._param_wire(name), p.ptype, len(self.param_names), self.param_names.index(name)
-            )
-        )
-
     # ================================================================== outgoing helpers
     def handle_datagram(self, data: bytes, ep: Any, addr: tuple[str, int]) -> int:
         """Decode one datagram and act on its messages; returns the number of accepted setpoints."""
@@ -387,44 +371,6 @@ class Autopilot(ModeLogic, InnerControl, TelemetryStreams, SetpointHandlers):
             return DENIED if self.fl.is_px4 else FAILED
         return self.request_mode(mode)
 
-    def _on_param_request_list(self, msg: Any) -> int:
-        for name in self.param_names:
-            self._send_param(name)
-        return 0
-
-    def _on_param_request_read(self, msg: Any) -> int:
-        if msg.param_index >= 0:
-            if msg.param_index < len(self.param_names):
-                self._send_param(self.param_names[msg.param_index])
-            return 0
-        name = _param_id(msg.param_id)
-        if name in self.params:
-            self._send_param(name)
-        return 0
-
-    def _on_param_set(self, msg: Any) -> int:
-        name = _param_id(msg.param_id)
-        p = self.params.get(name)
-        if p is None:
-            return 0
-        if p.ptype in (INT8, INT16, INT32):
-            if self.fl.is_px4:
-                v: float = struct.unpack("<i", struct.pack("<f", msg.param_value))[0]
-            else:
-                v = float(round(msg.param_value)) if math.isfinite(msg.param_value) else float("nan")
-        else:
-            v = msg.param_value
-        if p.readonly or not math.isfinite(v) or not (p.lo <= v <= p.hi):
-            if not p.readonly:
-                self.statustext(WARNING, f"param {name}: {v:g} out of range [{p.lo:g}, {p.hi:g}]")
-            self._send_param(name)
-            return 0
-        p.value = int(v) if p.ptype in (INT8, INT16, INT32) else float(v)
-        self.counters["param_sets"] += 1
-        self._apply_params(name)
-        self._send_param(name)
-        return 0
-
     def _on_set_mode(self, msg: Any) -> int:
         if self.fl.is_px4:
             main, sub = (msg.custom_mode >> 16) & 0xFF, (msg.custom_mode >> 24) & 0xFF
@@ -467,12 +413,6 @@ class Autopilot(ModeLogic, InnerControl, TelemetryStreams, SetpointHandlers):
             # the estimate's error model: where the ground sits in the local frame (NED z, m), None without one
             "ekf_ground_local_z_m": None if self.ekf is None else self.ekf.ground_local_z_m,
         }
-
-
-def _param_id(raw: Any) -> str:
-    if isinstance(raw, bytes):
-        raw = raw.decode("ascii", "replace")
-    return str(raw).split("\x00", 1)[0]
 
 
 def _allow_unsigned(mav: Any, msg_id: int) -> bool:

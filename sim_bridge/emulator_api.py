@@ -63,6 +63,9 @@ class EmulatorConfig:
     #: failing checks to emulate (``REFUSALS``): the autopilot refuses to arm, to take off, or to enter its
     #: offboard mode (PX4 OFFBOARD, ArduPilot GUIDED) with the answer and message the real one gives
     refuse: tuple[str, ...] = ()
+    #: parameters set before the start, as a ground station would (``--param NAME=VALUE``): e.g. a tuned
+    #: autopilot's attitude gains
+    params: tuple[tuple[str, float], ...] = ()
 
     def validate(self) -> None:
         """UserError (one line) for a value out of range."""
@@ -159,6 +162,11 @@ def build_emulator(cfg: EmulatorConfig) -> tuple[Any, Any, Any]:
         ekf=ekf,
     )
     ap.refuse = frozenset(cfg.refuse)
+    for name, value in cfg.params:
+        refused = ap.set_param(name, value)
+        if refused is not None:
+            link.close()
+            raise UserError(f"--param {name}={value:g}: {refused.removeprefix(f'param {name}: ')}")
     disturbance = None
     if cfg.disturbance == "paper":
         from sim_bridge.plant.disturbances import DisturbanceSpec, RandomDisturbance

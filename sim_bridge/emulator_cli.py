@@ -18,6 +18,7 @@ import argparse
 import contextlib
 import json
 import logging
+import math
 import signal
 import sys
 from typing import Any
@@ -158,6 +159,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "ArduPilot 'PreArm', result 4); takeoff = the take-off is refused (PX4 result 1, ArduPilot result 4); "
         "offboard = OFFBOARD / GUIDED cannot be entered (PX4 result 1, ArduPilot result 4)",
     )
+    parser.add_argument(
+        "--param",
+        action="append",
+        metavar="NAME=VALUE",
+        default=[],
+        help="set an autopilot parameter before the start (repeatable), as a ground station would: e.g. "
+        "MC_ROLL_P=2 for a PX4 with a slower attitude loop (the flavour's parameters and ranges: slung emulate "
+        "answers PARAM_REQUEST_LIST)",
+    )
 
 
 def parse_signing_key(text: str | None) -> bytes | None:
@@ -209,7 +219,20 @@ def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
         est_ready=args.est_ready,
         ekf=args.ekf,
         refuse=tuple(args.refuse),
+        params=tuple(parse_param(text) for text in args.param),
     )
+
+
+def parse_param(text: str) -> tuple[str, float]:
+    """``NAME=VALUE`` of ``--param`` -> (name, value); UserError for a malformed one."""
+    name, sep, value = text.partition("=")
+    try:
+        number = float(value)
+    except ValueError:
+        number = math.nan
+    if not sep or not name.strip() or not math.isfinite(number):
+        raise UserError(f"--param must be NAME=VALUE with a finite number, got {text!r}")
+    return name.strip(), number
 
 
 def build(args: argparse.Namespace) -> Any:

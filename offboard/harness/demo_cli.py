@@ -120,6 +120,7 @@ class EmulatorThread:
         disturbance: str = "none",
         signing_key: str | None = None,
         refuse: tuple[str, ...] = (),
+        params: tuple[tuple[str, float], ...] = (),
     ) -> None:
         from sim_bridge.emulator_api import EmulatorConfig, build_emulator
         from sim_bridge.emulator_cli import parse_signing_key
@@ -144,6 +145,7 @@ class EmulatorThread:
             tlog=None if tlog is None else str(tlog),
             signing_key=parse_signing_key(signing_key) if signing_key else None,
             refuse=refuse,
+            params=params,
         )
         self.emu, self.ap, self.link = build_emulator(self.config)
         self.error: BaseException | None = None
