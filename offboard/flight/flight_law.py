@@ -7,6 +7,9 @@ records it and ``slung replay`` rebuilds the same law."""
 from __future__ import annotations
 
 import argparse
+import copy
+from dataclasses import dataclass
+from typing import Any
 
 from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle
@@ -64,6 +67,31 @@ def resolve_law(law: str | None, output: str, vehicle: Vehicle) -> str:
         return "attitude"
     # a load swinging faster than the autopilot's attitude loop (docs/model.md §12.5); the start line names the law
     return "torque"
+
+
+#: the ``args`` fields :func:`resolve_switching` and ``fly`` record for ``slung replay``, per law
+RECORDED_LAW_FIELDS = ("law", "switching", "epsilon", "layer_errors", "actuation_lag_s", "shared_roll_pitch")
+
+
+@dataclass(frozen=True)
+class TorqueFallback:
+    """What ``--law auto`` flies instead of the attitude-level law it chose on PX4's default attitude loop (the
+    only loop known before the connection) if the autopilot's own loop, read before the take-off, leaves that law
+    no robust gains: the torque-level law's flight parameters, and the ``args`` fields to record then
+    (``RECORDED_LAW_FIELDS``, so that ``metrics.json`` and ``slung replay`` name the law that flew)."""
+
+    params: smc.ControllerParams
+    record: dict[str, Any]
+
+
+def torque_fallback(args: argparse.Namespace, vehicle: Vehicle) -> TorqueFallback:
+    """The torque-level law as ``fly`` would resolve it for ``--law torque`` with the same options (``args`` is
+    left as it is)."""
+    alt = copy.copy(args)
+    alt.law = "torque"
+    params = resolve_switching(alt, "torque", vehicle)
+    alt.shared_roll_pitch = params.shared_roll_pitch
+    return TorqueFallback(params, {name: getattr(alt, name, None) for name in RECORDED_LAW_FIELDS})
 
 
 def vehicle_gain_overrides(vehicle: Vehicle) -> dict[str, float]:

@@ -31,7 +31,7 @@ from offboard.cli_args import feedforward_tuning
 from offboard.control import smc, smc_attitude
 from offboard.flight.attitude_mapping import AttitudeLawMapper
 from offboard.flight.command_mapping import CommandMapper, MappingConfig
-from offboard.flight.flight_law import resolve_law, resolve_switching, vehicle_gain_overrides
+from offboard.flight.flight_law import resolve_law, resolve_switching, torque_fallback, vehicle_gain_overrides
 from offboard.flight.flight_outputs import write_flight_outputs
 from offboard.flight.fly_args import (
     add_flight_arguments,
@@ -195,10 +195,13 @@ def fly(
     scenario, duration = make_reference(args) if scenario is None else (scenario, scenario.duration)
     check_reference_bounds(scenario, duration)
     cfg = build_loop_config(args, lockstep, takeoff, inject)
-    args.law = resolve_law(getattr(args, "law", "auto"), args.output, vehicle)
+    asked_law = getattr(args, "law", "auto")
+    args.law = resolve_law(asked_law, args.output, vehicle)
     law = args.law
     if law == "attitude" and args.output == "actuator":
         raise UserError("--law attitude commands attitude and thrust: use --output attitude, or --law torque")
+    # --law auto chose on PX4's default attitude loop: the torque-level law stands by for the autopilot's own
+    fallback = torque_fallback(args, vehicle) if law == "attitude" and asked_law in (None, "auto") else None
     torque_params = resolve_switching(args, law, vehicle)
     args.shared_roll_pitch = torque_params.shared_roll_pitch and law == "torque"  # recorded for slung replay
     mapping = MappingConfig(output=args.output, mask=args.mask or default_mask(None))
@@ -258,6 +261,7 @@ def fly(
             ),
             on_reference_start=on_reference_start,
             controller=controller,
+            torque_fallback=fallback.params if fallback is not None else None,
         )
         if not quiet:
             print(
@@ -274,6 +278,8 @@ def fly(
         except UserError as exc:  # refused or impossible before the flight: the folder still says what happened
             write_refusal_events(out_dir, loop, exc)
             raise
+        if fallback is not None and loop.flew_torque_fallback:
+            vars(args).update(fallback.record)  # metrics.json and slung replay: the law that flew
         if prio_warning:
             result.warnings.append(prio_warning)
         if not result.load_sensor:

@@ -140,6 +140,7 @@ class FlightLoop:
         estimator_factory: Callable[..., Estimator] | None = None,
         on_reference_start: Callable[[float], None] | None = None,
         controller: Controller | None = None,
+        torque_fallback: smc.ControllerParams | None = None,
     ) -> None:
         config.validate()
         self.conn = conn
@@ -152,6 +153,10 @@ class FlightLoop:
         self._controller_given = controller
         self.controller: Controller = controller if controller is not None else law_for(params)
         self.mapper = mapper
+        #: ``--law auto``: the torque-level law to fly if the attitude-level law has no robust gains behind the
+        #: autopilot's own attitude loop (read before the take-off); ``flew_torque_fallback`` says it was taken
+        self._torque_fallback = torque_fallback
+        self.flew_torque_fallback = False
         self.estimator = estimator
         self.cfg = config
         self.truth_probe = truth_probe
@@ -665,6 +670,22 @@ class FlightLoop:
             scratch.push_command(t, hover, (0.0, 0.0, 0.0))
             scratch.estimate(t)
 
+    def _fly_torque_fallback(self, inner: smc_attitude.InnerLoop) -> None:
+        """``--law auto`` took the attitude-level law on PX4's default attitude loop, but this autopilot's loop
+        leaves it no gains robust to that loop off by 2x (docs/model.md §12.5): fly the torque-level law through
+        the same attitude output instead (its mapping inverts the autopilot's cascade), before any command."""
+        assert self._torque_fallback is not None
+        self.params = self._torque_fallback
+        self.mapper = CommandMapper(self.vehicle, self.mapper.config, self.mapper.autopilot)
+        self.controller = law_for(self.params)
+        self.flew_torque_fallback = True
+        self.event(
+            "phase",
+            f"--law auto: the torque-level law: this autopilot's attitude loop ({inner.attitude_bandwidth:g} 1/s) "
+            f"leaves the attitude-level law no robust gains for this load's swing "
+            f"({self.vehicle.pendulum_frequency:.1f} rad/s)",
+        )
+
     # ---------------------------------------------------------------------------------------- the flight ---
     def run(self) -> FlightResult:
         """Fly: pre-flight, take-off, prime, offboard control, end (hold / land). Signal handlers are installed
@@ -690,7 +711,10 @@ class FlightLoop:
                 inner = inner_loop_of(self.mapper.autopilot)
                 tilt_max = min(self.params.tilt_max, self.mapper.config.max_tilt)  # within the autopilot's limit
                 self.params = self.params.with_inner(inner, tilt_max=tilt_max)
-                if not smc_attitude.robust_gains_exist(self.vehicle, inner, self.params.tilt_max):
+                robust = smc_attitude.robust_gains_exist(self.vehicle, inner, self.params.tilt_max)
+                if not robust and self._torque_fallback is not None and self._controller_given is None:
+                    self._fly_torque_fallback(inner)
+                elif not robust:
                     self.mgr.warnings.append(
                         f"attitude-level law: no gains stay stable with this autopilot's attitude loop "
                         f"({inner.attitude_bandwidth:g} 1/s) off by 2x for this load's swing "
