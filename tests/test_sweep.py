@@ -111,15 +111,50 @@ def test_batched_path_with_the_filter_equals_the_scalar_path(tmp_path: Path) -> 
         assert ref.column("alpha").max() > 0.05
 
 
-def test_batched_sweep_gives_the_scalar_sweeps_table(tmp_path: Path) -> None:
+@pytest.mark.parametrize("law", ["cascade", "zv", "zvd", "swing-feedback"])
+def test_batched_cascades_with_the_filter_equal_the_scalar_path(tmp_path: Path, law: str) -> None:
+    """The stock cascade and its shaped and swing-feedback rows over three drawn runs with the filter, the drawn
+    sensors and the mixer, advanced together: the plant's trajectories and the estimates of
+    ``offboard.harness.sim.run`` flying the registry's controller on each, to 1e-9."""
+    cfg = sweep.load_config(_short_file(tmp_path, estimator="kf", move=4.0, hold=0.5))
+    params = registry.smc_params(V)
+    draws = [sweep.draw(cfg, r, V) for r in range(3)]
+    vehicles = [sweep.plant_vehicle(V, d) for d in draws]
+    scs = [sweep.scenario(cfg, d) for d in draws]
+    presets = [sweep.sensor_preset(cfg, d) for d in draws]
+    seeds = [int(d["sensor_seed"]) for d in draws]
+    log = batched.simulate(
+        scs, vehicles, params, estimator="kf", actuators="mixer", sensors=presets, seeds=seeds, law=law
+    )
+    for b in range(3):
+        sim_cfg = SimConfig(estimator="kf", sensors=cfg.sensors, actuators="mixer", seed=seeds[b])
+        ref = sim.run(
+            scs[b],
+            vehicles[b],
+            params,
+            sim_cfg,
+            controller=registry.make(law, V),
+            sensor_preset=presets[b],
+            command_lag=True,
+        )
+        assert ref.data.shape[0] == log["x"].shape[0]
+        np.testing.assert_allclose(log["x"][:, :, b], ref.data[:, 1:19], rtol=0.0, atol=1e-9)
+        np.testing.assert_allclose(log["est_Fx0"][:, b], ref.column("est_Fx0"), rtol=0.0, atol=1e-9)
+        assert ref.column("alpha").max() > 0.1  # the cascades swing the load in the move
+    with pytest.raises(ValueError, match="lqr"):
+        batched.simulate(scs, vehicles, params, law="lqr")
+
+
+@pytest.mark.parametrize("controller", ["smc", "cascade"])
+def test_batched_sweep_gives_the_scalar_sweeps_table(tmp_path: Path, controller: str) -> None:
     """``slung sweep`` with the batched engine (filter, mixer) writes the scalar engine's table: the same verdicts,
     the same figures to 1e-9."""
     tables = {}
     for engine in ("scalar", "batched"):
         (tmp_path / engine).mkdir()
         f = _short_file(tmp_path / engine, engine=engine, estimator="kf", move=1.0, hold=2.2)
-        s = execute(3, ["smc"], tmp_path / engine / "out", file=str(f), workers=0, figures=False, progress=False)
-        assert s["engine_by_controller"] == {"smc": engine}
+        s = execute(3, [controller], tmp_path / engine / "out", file=str(f), workers=0, figures=False, progress=False)
+        assert s["engine_by_controller"] == {controller: engine}
         with open(tmp_path / engine / "out" / "results.csv", encoding="utf-8") as fh:
             tables[engine] = list(csv.DictReader(fh))
     assert len(tables["scalar"]) == len(tables["batched"]) == 3

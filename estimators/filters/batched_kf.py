@@ -59,7 +59,7 @@ _DEFAULT_TUNING = MeasuredTuning()
 _STREAMS = ("pos", "z", "tilt", "psi", "acc", "acc_in", "load", "gyro")
 
 
-def _wrap(a: Array) -> Array:
+def wrap_angles(a: Array) -> Array:
     """``estimators.model.frames.wrap_angle`` over arrays (finite inputs)."""
     two_pi = 2.0 * math.pi
     w = np.fmod(a + math.pi, two_pi)
@@ -494,7 +494,7 @@ class BatchedMeasuredKalman:
             self.blocks[bi].put(idx, x, p)
         x, p, _ = self.blocks[5].get(idx)
         psi_est = x[0]
-        self._pair("psi", 5, x, p, idx, psi_est + _wrap(psi - psi_est), psi_rate, "yaw", "yaw_rate")
+        self._pair("psi", 5, x, p, idx, psi_est + wrap_angles(psi - psi_est), psi_rate, "yaw", "yaw_rate")
         self.blocks[5].put(idx, x, p)
 
     def _fuse_imu(self, idx: Array, t: Array, z: Array) -> None:
@@ -607,7 +607,7 @@ class BatchedMeasuredKalman:
             "z_rate": z_rate,
             "phi": phi,
             "theta": theta,
-            "psi": _wrap(psi),
+            "psi": wrap_angles(psi),
             "phi_rate": phi_rate,
             "theta_rate": theta_rate,
             "psi_rate": psi_rate,

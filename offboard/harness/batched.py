@@ -6,7 +6,9 @@ quantity a numpy array over the runs, the same equations as the scalar path.
   cable length, inertia and still-air drag (:func:`apply_drag`);
 - controller: the sliding-mode law ``offboard.control.smc.step`` over arrays
   (``offboard.harness.batched_controllers.smc_step``: the same height, yaw and horizontal laws, saturation and
-  anti-windup), on the estimator's state (below) with the controller's nominal vehicle;
+  anti-windup) or the stock cascade (``batched_controllers.CascadeStep``: the ``cascade`` row, and the ``zv`` /
+  ``zvd`` rows behind the reference shaper, shared by all runs; ``SwingFeedbackStep``: ``swing-feedback``), on the
+  estimator's state (below) with the controller's nominal vehicle;
 - one reference for all runs (sampled once per tick), a 1 - cos gust and an initial swing per run.
 
 Estimation and actuation, as in the scalar path: ``estimator = "truth"`` (the true state) or ``"kf"``, the
@@ -201,6 +203,29 @@ class Figures:
         self.est_err = np.fmax(self.est_err, est_err)
 
 
+#: the sweep's controllers the batched path flies (the others fly the scalar path)
+BATCHED_LAWS = ("smc", "cascade", "zv", "zvd", "swing-feedback")
+
+
+def _batched_law(law: str, vehicle: Any, runs: int) -> tuple[Any, Any]:
+    """(the cascade over runs, the reference shaper in front of it) for a cascade row of ``BATCHED_LAWS`` on the
+    nominal ``vehicle``; (None, None) for ``smc``. The registry's own controller gives the parameters (gains,
+    the shaper's impulses, the applet's constants), so the two paths cannot drift apart."""
+    from offboard.control.controllers import registry
+    from offboard.control.controllers.shaping import ShapedCascade
+    from offboard.control.controllers.swing_feedback import SwingFeedbackCascade
+    from offboard.harness.batched_controllers import CascadeStep, SwingFeedbackStep
+
+    if law == "smc":
+        return None, None
+    scalar = registry.make(law, vehicle)
+    if isinstance(scalar, SwingFeedbackCascade):
+        return SwingFeedbackStep(vehicle, scalar.gains, runs, scalar), None
+    if isinstance(scalar, ShapedCascade):
+        return CascadeStep(vehicle, scalar.cascade.gains, runs), scalar.shaper
+    return CascadeStep(vehicle, scalar.gains, runs), None
+
+
 def simulate(
     scenarios: list[Any],
     vehicles: list[Any],
@@ -215,6 +240,7 @@ def simulate(
     load_sensor: bool = True,
     plant_dt: float = 0.001,
     tuning: Any = None,
+    law: str = "smc",
 ) -> dict[str, Any]:
     """Run the scenarios (one reference for all: the first's; each its own gust and initial state) with their
     true vehicles together, as ``offboard.harness.sim.run`` runs each: returns arrays (ticks, B) of ``t`` (ticks,),
@@ -223,7 +249,8 @@ def simulate(
     figures (``figures``: :class:`Figures`). ``estimator``: ``truth`` or ``kf`` (the measured-input filter on
     ``sensors``, one ``sim_bridge.plant.sensors.Preset`` per run, generator seeds ``seeds``); ``actuators``: ``ideal``
     or ``mixer`` (four motors with each vehicle's lag); ``tuning``: the filter's (``MeasuredTuning``; None: the
-    defaults)."""
+    defaults); ``law``: ``smc`` (the sliding-mode law of ``params``) or one of the cascade's rows of
+    ``BATCHED_LAWS`` (with their default gains, on ``params.vehicle``, the nominal vehicle)."""
     from estimators.filters.batched_kf import GYRO, IMU, BatchedMeasuredKalman
     from offboard.harness.batched_controllers import smc_step
     from offboard.harness.batched_sensors import RING, BatchMixer, Records, measure, schedule
@@ -232,6 +259,8 @@ def simulate(
 
     if estimator not in ("truth", "kf") or actuators not in ("ideal", "mixer"):
         raise ValueError("the batched path flies estimator truth or kf, actuators ideal or mixer")
+    if law not in BATCHED_LAWS:
+        raise ValueError(f"the batched path flies the laws {', '.join(BATCHED_LAWS)}, not {law!r}")
     scs = [plant_scenario(s) for s in scenarios]
     B = len(scs)
     p = BatchPlant(vehicles)
@@ -242,6 +271,7 @@ def simulate(
     n_ticks = math.floor(T / dt + 1e-9) + 1
     x = np.array([s.initial_state for s in scs], dtype=float).T  # (18, B)
     mem = np.zeros((8, B))
+    cascade, shaper = _batched_law(law, params.vehicle, B)
     reference = scs[0].reference
     gust = _Gusts([s.disturbance for s in scs])
     keep = list(range(0, n_ticks, log_every)) if log_every > 0 else []
@@ -307,7 +337,13 @@ def simulate(
         else:
             est = truth
         ref = reference.sample(t)
-        uc, sat, mem = smc_step(0.0 if tick == 0 else dt, est, ref.fx, ref.fy, ref.z, ref.psi, mem, params)
+        if cascade is not None:
+            rfx, rfy, rz, rpsi = ref.fx, ref.fy, ref.z, ref.psi
+            if shaper is not None:  # one reference for all runs: shaped once
+                rfx, rfy, rz, rpsi = shaper(t, rfx, rfy, rz, rpsi)
+            uc, sat = cascade(t, est, rfx, rfy, rz, rpsi)
+        else:
+            uc, sat, mem = smc_step(0.0 if tick == 0 else dt, est, ref.fx, ref.fy, ref.z, ref.psi, mem, params)
         if kf is not None:  # offboard.harness.sim.run(command_lag=True): through the nominal motor lag with motors
             if mixer is None or tick == 0 or lag_tau == 0.0:
                 lagged = uc[0:3].copy()
@@ -421,8 +457,8 @@ def run_batch(config: Any, controller: str, runs: list[int]) -> list[dict[str, A
     from offboard.control.controllers import registry
     from offboard.harness import sweep
 
-    if controller != "smc":
-        raise ValueError("the batched engine flies the sliding-mode law only")
+    if controller not in BATCHED_LAWS:
+        raise ValueError(f"the batched engine flies {', '.join(BATCHED_LAWS)} only, not {controller!r}")
     nominal = load_vehicle(config.vehicle_file)
     draws = [sweep.draw(config, r, nominal) for r in runs]
     vehicles = [sweep.plant_vehicle(nominal, d) for d in draws]
@@ -433,7 +469,7 @@ def run_batch(config: Any, controller: str, runs: list[int]) -> list[dict[str, A
         kw.update(sensors=[sweep.sensor_preset(config, d) for d in draws], seeds=[int(d["sensor_seed"]) for d in draws])
         kw.update(tuning=registry.filter_tuning(controller))
     wall0 = time.perf_counter()
-    log = simulate(scs, vehicles, params, log_every=0, **kw)
+    log = simulate(scs, vehicles, params, log_every=0, law=controller, **kw)
     wall = time.perf_counter() - wall0
     fig: Figures = log["figures"]
     sim_s = (log["n_ticks"] - 1) * 0.001  # the scalar log's last time, tick * control_dt

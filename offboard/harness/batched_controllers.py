@@ -1,6 +1,8 @@
 """The controllers of the batched sweep path (``offboard.harness.batched``) over many runs at once: the sliding-mode law
-``offboard.control.smc.step`` (:func:`smc_step`) with the same expressions in the same order, the runs' estimates and
-memories as arrays (``tests/test_sweep.py`` checks them against the scalar path).
+``offboard.control.smc.step`` (:func:`smc_step`), the stock cascade ``offboard.control.controllers.cascade``
+(:class:`CascadeStep`; behind a shaped reference, ``zv`` / ``zvd``) and the swing-feedback cascade
+(:class:`SwingFeedbackStep`) with the same expressions in the same order, the
+runs' estimates and memories as arrays (``tests/test_sweep.py`` checks them against the scalar path).
 """
 
 from __future__ import annotations
@@ -9,8 +11,12 @@ import math
 
 import numpy as np
 
+from estimators.filters.batched_kf import wrap_angles
 from estimators.model.flatness import flat_constants
+from estimators.model.vehicle import Vehicle
 from offboard.control import smc
+from offboard.control.controllers.cascade import CascadeGains
+from offboard.control.controllers.swing_feedback import SwingFeedbackCascade
 
 Array = np.ndarray
 
@@ -155,3 +161,144 @@ def smc_step(
         ]
     )
     return u, s1 | s2 | s3 | s4, new_mem
+
+
+class CascadeStep:
+    """``offboard.control.controllers.cascade.CascadeController.step`` over runs (the swing-unaware stock cascade:
+    position P, velocity PID, thrust vector with PX4's tilt limit, attitude P, rate PI), with the same expressions
+    in the same order. Its memory: the velocity integrators, the rate integrators and each run's time of its last
+    step (a run whose estimate is not finite gets the hover command and keeps its memory, as the scalar law
+    does)."""
+
+    def __init__(self, vehicle: Vehicle, gains: CascadeGains, runs: int) -> None:
+        self.vehicle = vehicle
+        self.gains = gains
+        self.l = vehicle.cable_length
+        self.mt, self.m = vehicle.total_mass, vehicle.mass_load
+        self.acc_gain = vehicle.gravity / vehicle.mass_vehicle
+        self.g = vehicle.gravity
+        self.thrust_max = vehicle.thrust_max
+        self.torque_max = (vehicle.roll_pitch_torque_max, vehicle.roll_pitch_torque_max, vehicle.yaw_torque_max)
+        self.hover = vehicle.hover_thrust
+        zeros = np.zeros(runs)
+        self.ivx, self.ivy, self.ivz, self.i_p, self.i_q = (zeros.copy() for _ in range(5))
+        self.t_last = np.full(runs, np.nan)
+
+    def offsets(self, dt: Array, est: dict[str, Array], finite: Array) -> tuple[Array | float, ...]:
+        """The horizontal position, velocity and acceleration setpoint offsets (x, y each; world): none for the
+        stock cascade (``CascadeController.offsets``; the swing-feedback baseline's hook)."""
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+
+    def __call__(
+        self,
+        t: float,
+        est: dict[str, Array],
+        rfx: tuple[float, ...],
+        rfy: tuple[float, ...],
+        rz: tuple[float, ...],
+        rpsi: tuple[float, ...],
+    ) -> tuple[Array, Array]:
+        """(u (4, B): thrust and torques, saturated (B,) bool: a torque, the thrust or the tilt limit) at time
+        ``t`` (s) for the runs' estimates and the one reference (orders 0..6 of ``F_x``, ``F_y``; ``z``, ``psi``)."""
+        G = self.gains
+        fx, fy = est["fx"], est["fy"]
+        rest = ("z", "z_rate", "phi", "theta", "psi", "phi_rate", "theta_rate", "psi_rate")
+        swing = ("alpha_x", "alpha_y", "alpha_x_rate", "alpha_y_rate")
+        finite = np.isfinite(fx.sum(axis=0) + fy.sum(axis=0) + sum(est[n] for n in (*rest, *swing)))
+        dt = np.where(np.isnan(self.t_last), 0.0, np.maximum(0.0, t - self.t_last))
+        l = self.l
+        x, y = fx[0] - l * est["alpha_y"], fy[0] - l * est["alpha_x"]
+        vx, vy = fx[1] - l * est["alpha_y_rate"], fy[1] - l * est["alpha_x_rate"]
+        ox, oy, ovx, ovy, oax, oay = self.offsets(dt, est, finite)
+        # 1. position P + velocity feed-forward, speed limited
+        vsx = rfx[1] + ovx + G.kp_xy * (rfx[0] + ox - x)
+        vsy = rfy[1] + ovy + G.kp_xy * (rfy[0] + oy - y)
+        vsz = rz[1] + G.kp_z * (rz[0] - est["z"])
+        sp = np.hypot(vsx, vsy)
+        over = sp > G.vel_max_xy
+        scale = np.where(over, G.vel_max_xy / np.where(over, sp, 1.0), 1.0)
+        vsx, vsy = np.where(over, vsx * scale, vsx), np.where(over, vsy * scale, vsy)
+        vsz = np.maximum(-G.vel_max_z, np.minimum(G.vel_max_z, vsz))
+        # 2. velocity PID + acceleration feed-forward (D on the first-order acceleration)
+        evx, evy, evz = vsx - vx, vsy - vy, vsz - est["z_rate"]
+        ivx, ivy, ivz = self.ivx + evx * dt, self.ivy + evy * dt, self.ivz + evz * dt
+        phi, theta, psi = est["phi"], est["theta"], est["psi"]
+        cps, sps = np.cos(psi), np.sin(psi)
+        nx = theta * cps + phi * sps
+        ny = theta * sps - phi * cps
+        acc_x = self.acc_gain * (self.mt * nx + self.m * est["alpha_y"])
+        acc_y = self.acc_gain * (self.mt * ny + self.m * est["alpha_x"])
+        ax = rfx[2] + oax + G.kv_xy * evx + G.ki_xy * ivx - G.kd_xy * (acc_x - rfx[2])
+        ay = rfy[2] + oay + G.kv_xy * evy + G.ki_xy * ivy - G.kd_xy * (acc_y - rfy[2])
+        az = rz[2] + G.kv_z * evz + G.ki_z * ivz
+        # 3. thrust vector, tilt limited as PX4 does (cascade.AttitudeThrustLoop)
+        tz = np.maximum(az + self.g, 0.1 * self.g)
+        h = np.hypot(ax, ay)
+        h_max = tz * math.tan(G.tilt_max)
+        tilted = h > h_max
+        shrink = np.where(tilted, h_max / np.where(tilted, h, 1.0), 1.0)
+        ax, ay = np.where(tilted, ax * shrink, ax), np.where(tilted, ay * shrink, ay)
+        thrust = self.mt * np.sqrt(ax * ax + ay * ay + tz * tz)
+        psi_d = rpsi[0]
+        cp, sp_ = math.cos(psi_d), math.sin(psi_d)
+        zx, zy = cp * ax + sp_ * ay, -sp_ * ax + cp * ay
+        norm = np.sqrt(zx * zx + zy * zy + tz * tz)
+        phi_d = np.arcsin(np.maximum(-1.0, np.minimum(1.0, -zy / norm)))
+        theta_d = np.arctan2(zx, tz)
+        # 4. attitude P -> rates, rate PI -> angular acceleration -> torque
+        p_sp = G.kp_att * (phi_d - phi)
+        q_sp = G.kp_att * (theta_d - theta)
+        ref_rate = rpsi[1] if len(rpsi) > 1 else 0.0
+        r_sp = ref_rate + G.kp_yaw * wrap_angles(psi_d - psi)
+        r_sp = np.maximum(-G.yaw_rate_max, np.minimum(G.yaw_rate_max, r_sp))
+        e_p, e_q = p_sp - est["phi_rate"], q_sp - est["theta_rate"]
+        i_p, i_q = self.i_p + e_p * dt, self.i_q + e_q * dt
+        Ix, Iy, Iz = self.vehicle.inertia
+        tau_phi = Ix * (G.kr_rp * e_p + G.ki_rp * i_p)
+        tau_theta = Iy * (G.kr_rp * e_q + G.ki_rp * i_q)
+        tau_psi = Iz * (G.kr_yaw * (r_sp - est["psi_rate"]) + (rpsi[2] if len(rpsi) > 2 else 0.0))
+        tp, tt, ts = self.torque_max
+        s_p, s_q, s_r = np.abs(tau_phi) > tp, np.abs(tau_theta) > tt, np.abs(tau_psi) > ts
+        s_t = thrust > self.thrust_max
+        tau_phi = np.where(s_p, np.copysign(tp, tau_phi), tau_phi)
+        tau_theta = np.where(s_q, np.copysign(tt, tau_theta), tau_theta)
+        tau_psi = np.where(s_r, np.copysign(ts, tau_psi), tau_psi)
+        thrust = np.where(s_t, self.thrust_max, thrust)
+        # the memories, as the scalar law keeps them (runs with a non-finite estimate keep theirs)
+        self.i_p = np.where(finite & ~s_p, i_p, self.i_p)
+        self.i_q = np.where(finite & ~s_q, i_q, self.i_q)
+        self.ivx = np.where(finite & ~tilted, ivx, self.ivx)
+        self.ivy = np.where(finite & ~tilted, ivy, self.ivy)
+        self.ivz = np.where(finite & (thrust < self.thrust_max), ivz, self.ivz)
+        self.t_last = np.where(finite, t, self.t_last)
+        u = np.stack([thrust, tau_phi, tau_theta, tau_psi])
+        u = np.where(finite, u, np.array([[self.hover], [0.0], [0.0], [0.0]]))
+        return u, finite & (s_p | s_q | s_r | s_t | tilted)
+
+
+class SwingFeedbackStep(CascadeStep):
+    """``offboard.control.controllers.swing_feedback.SwingFeedbackCascade`` over runs: the cascade plus the
+    ArduPilot slung-payload applet's offsets toward the load, the same expressions (each run's rest offset,
+    position offset and velocity offset as arrays; runs with a non-finite estimate keep theirs)."""
+
+    def __init__(self, vehicle: Vehicle, gains: CascadeGains, runs: int, law: SwingFeedbackCascade) -> None:
+        super().__init__(vehicle, gains, runs)
+        self.vel_p, self.wp_pos_p, self.rest_tc, self.dist_max = law.vel_p, law.wp_pos_p, law.rest_tc, law.dist_max
+        zeros = np.zeros(runs)
+        self.rest_x, self.rest_y, self.off_x, self.off_y, self.vel_x, self.vel_y = (zeros.copy() for _ in range(6))
+
+    def offsets(self, dt: Array, est: dict[str, Array], finite: Array) -> tuple[Array | float, ...]:
+        dx, dy = self.l * est["alpha_y"], self.l * est["alpha_x"]  # payload - vehicle, horizontal (m, world)
+        alpha = dt / (dt + self.rest_tc / (2.0 * math.pi))
+        rest_x = self.rest_x + alpha * (dx - self.rest_x)
+        rest_y = self.rest_y + alpha * (dy - self.rest_y)
+        ox, oy = self.off_x + self.vel_x * dt, self.off_y + self.vel_y * dt
+        far = np.hypot(dx, dy) > self.dist_max
+        vel_x = np.where(far, 0.0, self.wp_pos_p * (-ox - rest_x))
+        vel_y = np.where(far, 0.0, self.wp_pos_p * (-oy - rest_y))
+        self.rest_x, self.rest_y = np.where(finite, rest_x, self.rest_x), np.where(finite, rest_y, self.rest_y)
+        self.off_x, self.off_y = np.where(finite, ox, self.off_x), np.where(finite, oy, self.off_y)
+        self.vel_x, self.vel_y = np.where(finite, vel_x, self.vel_x), np.where(finite, vel_y, self.vel_y)
+        oax = np.where(far, 0.0, -self.vel_p * est["fx"][3])
+        oay = np.where(far, 0.0, -self.vel_p * est["fy"][3])
+        return ox, oy, vel_x, vel_y, oax, oay

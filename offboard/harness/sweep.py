@@ -411,9 +411,11 @@ def run_chunk(config_dict: dict[str, Any], controller: str, runs: list[int]) -> 
 
 
 def engine_for(config: SweepConfig, controller: str) -> str:
-    """The path that flies ``controller``'s runs: the file's engine, except that the batched path has the
-    sliding-mode law only (``smc``; the others fall back to the scalar path)."""
-    return "batched" if config.engine == "batched" and controller == "smc" else "scalar"
+    """The path that flies ``controller``'s runs: the file's engine, except that the batched path has only the
+    sliding-mode law and the stock cascade (``smc``, ``cascade``; the others fall back to the scalar path)."""
+    from offboard.harness.batched import BATCHED_LAWS
+
+    return "batched" if config.engine == "batched" and controller in BATCHED_LAWS else "scalar"
 
 
 def single_run_speed(config: SweepConfig) -> dict[str, float]:

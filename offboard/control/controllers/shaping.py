@@ -99,29 +99,17 @@ def cascade_swing_mode(vehicle: Vehicle, gains: CascadeGains | None = None) -> t
     return float(omega), float(-lam.real / omega)
 
 
-class ShapedCascade:
-    """``zv`` / ``zvd``: the stock cascade flying the shaped reference (see the module docstring).
+class ReferenceShaper:
+    """The shaped reference ``sum A_i ref(t - t_i)`` for every derivative order, from the reference samples given
+    at the ticks so far (at most the shaper's length back kept), linearly interpolated between ticks; before the
+    first tick the first sample holds (a flight starts at rest). Shared by :class:`ShapedCascade` and the batched
+    sweep path (one reference for all runs: shaped once per tick)."""
 
-    The controller keeps the reference samples it was given (at most the shaper's length back) and feeds the
-    cascade ``sum A_i ref(t - t_i)`` for every derivative order, linearly interpolated between ticks; before the
-    first tick the first sample holds (a flight starts at rest).
-    """
-
-    def __init__(
-        self,
-        vehicle: Vehicle,
-        kind: str = "zv",
-        gains: CascadeGains | None = None,
-        mode: tuple[float, float] | None = None,
-    ) -> None:
-        self.name = kind
-        self.cascade = CascadeController(vehicle, gains, name=kind)
-        self.omega, self.zeta = mode if mode is not None else cascade_swing_mode(vehicle, gains)
-        self.amplitudes, self.delays = shaper_impulses(kind, self.omega, self.zeta)
+    def __init__(self, amplitudes: Sequence[float], delays: Sequence[float]) -> None:
+        self.amplitudes, self.delays = tuple(amplitudes), tuple(delays)
         self.reset()
 
     def reset(self) -> None:
-        self.cascade.reset()
         self._t: list[float] = []
         self._r: list[tuple[tuple[float, ...], ...]] = []
 
@@ -145,8 +133,10 @@ class ShapedCascade:
             for k in range(4)
         )
 
-    def step(self, t: float, est: ControlState, ref_fx: Ref, ref_fy: Ref, ref_z: Ref, ref_psi: Ref) -> Command:
-        if self._t and t <= self._t[-1]:  # a repeated tick: replace its sample
+    def __call__(self, t: float, ref_fx: Ref, ref_fy: Ref, ref_z: Ref, ref_psi: Ref) -> tuple[tuple[float, ...], ...]:
+        """Take the tick's reference sample (a repeated tick replaces its sample) and give the shaped
+        (fx, fy, z, psi) at ``t``."""
+        if self._t and t <= self._t[-1]:
             self._t.pop()
             self._r.pop()
         self._t.append(t)
@@ -156,7 +146,37 @@ class ShapedCascade:
             cut = bisect.bisect_left(self._t, horizon) - 1
             if cut > 0:
                 del self._t[:cut], self._r[:cut]
-        fx, fy, z, psi = self.shaped(t)
+        return self.shaped(t)
+
+
+class ShapedCascade:
+    """``zv`` / ``zvd``: the stock cascade flying the shaped reference (see the module docstring and
+    :class:`ReferenceShaper`)."""
+
+    def __init__(
+        self,
+        vehicle: Vehicle,
+        kind: str = "zv",
+        gains: CascadeGains | None = None,
+        mode: tuple[float, float] | None = None,
+    ) -> None:
+        self.name = kind
+        self.cascade = CascadeController(vehicle, gains, name=kind)
+        self.omega, self.zeta = mode if mode is not None else cascade_swing_mode(vehicle, gains)
+        self.amplitudes, self.delays = shaper_impulses(kind, self.omega, self.zeta)
+        self.shaper = ReferenceShaper(self.amplitudes, self.delays)
+        self.reset()
+
+    def reset(self) -> None:
+        self.cascade.reset()
+        self.shaper.reset()
+
+    def shaped(self, t: float) -> tuple[tuple[float, ...], ...]:
+        """The shaped (fx, fy, z, psi) at ``t`` from the samples given so far."""
+        return self.shaper.shaped(t)
+
+    def step(self, t: float, est: ControlState, ref_fx: Ref, ref_fy: Ref, ref_z: Ref, ref_psi: Ref) -> Command:
+        fx, fy, z, psi = self.shaper(t, ref_fx, ref_fy, ref_z, ref_psi)
         return self.cascade.step(t, est, fx, fy, z, psi)
 
     def memory_fields(self) -> tuple[float, float, float, float]:
