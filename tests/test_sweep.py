@@ -111,10 +111,10 @@ def test_batched_path_with_the_filter_equals_the_scalar_path(tmp_path: Path) -> 
         assert ref.column("alpha").max() > 0.05
 
 
-@pytest.mark.parametrize("law", ["cascade", "zv", "zvd", "swing-feedback"])
-def test_batched_cascades_with_the_filter_equal_the_scalar_path(tmp_path: Path, law: str) -> None:
-    """The stock cascade and its shaped and swing-feedback rows over three drawn runs with the filter, the drawn
-    sensors and the mixer, advanced together: the plant's trajectories and the estimates of
+@pytest.mark.parametrize("law", ["cascade", "zv", "zvd", "swing-feedback", "lqr"])
+def test_batched_baselines_with_the_filter_equal_the_scalar_path(tmp_path: Path, law: str) -> None:
+    """The baselines (the stock cascade, its shaped and swing-feedback rows, LQR) over three drawn runs with the
+    filter, the drawn sensors and the mixer, advanced together: the plant's trajectories and the estimates of
     ``offboard.harness.sim.run`` flying the registry's controller on each, to 1e-9."""
     cfg = sweep.load_config(_short_file(tmp_path, estimator="kf", move=4.0, hold=0.5))
     params = registry.smc_params(V)
@@ -140,9 +140,9 @@ def test_batched_cascades_with_the_filter_equal_the_scalar_path(tmp_path: Path, 
         assert ref.data.shape[0] == log["x"].shape[0]
         np.testing.assert_allclose(log["x"][:, :, b], ref.data[:, 1:19], rtol=0.0, atol=1e-9)
         np.testing.assert_allclose(log["est_Fx0"][:, b], ref.column("est_Fx0"), rtol=0.0, atol=1e-9)
-        assert ref.column("alpha").max() > 0.1  # the cascades swing the load in the move
-    with pytest.raises(ValueError, match="lqr"):
-        batched.simulate(scs, vehicles, params, law="lqr")
+        assert ref.column("alpha").max() > 0.1  # the load swings in the move
+    with pytest.raises(ValueError, match="smc-attitude"):
+        batched.simulate(scs, vehicles, params, law="smc-attitude")
 
 
 @pytest.mark.parametrize("controller", ["smc", "cascade"])

@@ -7,8 +7,8 @@ quantity a numpy array over the runs, the same equations as the scalar path.
 - controller: the sliding-mode law ``offboard.control.smc.step`` over arrays
   (``offboard.harness.batched_controllers.smc_step``: the same height, yaw and horizontal laws, saturation and
   anti-windup) or the stock cascade (``batched_controllers.CascadeStep``: the ``cascade`` row, and the ``zv`` /
-  ``zvd`` rows behind the reference shaper, shared by all runs; ``SwingFeedbackStep``: ``swing-feedback``), on the
-  estimator's state (below) with the controller's nominal vehicle;
+  ``zvd`` rows behind the reference shaper, shared by all runs; ``SwingFeedbackStep``: ``swing-feedback``;
+  ``LqrStep``: ``lqr``), on the estimator's state (below) with the controller's nominal vehicle;
 - one reference for all runs (sampled once per tick), a 1 - cos gust and an initial swing per run.
 
 Estimation and actuation, as in the scalar path: ``estimator = "truth"`` (the true state) or ``"kf"``, the
@@ -204,21 +204,24 @@ class Figures:
 
 
 #: the sweep's controllers the batched path flies (the others fly the scalar path)
-BATCHED_LAWS = ("smc", "cascade", "zv", "zvd", "swing-feedback")
+BATCHED_LAWS = ("smc", "cascade", "zv", "zvd", "swing-feedback", "lqr")
 
 
 def _batched_law(law: str, vehicle: Any, runs: int) -> tuple[Any, Any]:
-    """(the cascade over runs, the reference shaper in front of it) for a cascade row of ``BATCHED_LAWS`` on the
-    nominal ``vehicle``; (None, None) for ``smc``. The registry's own controller gives the parameters (gains,
+    """(the law over runs, the reference shaper in front of it) for a row of ``BATCHED_LAWS`` other than ``smc``
+    on the nominal ``vehicle``; (None, None) for ``smc``. The registry's own controller gives the parameters (gains,
     the shaper's impulses, the applet's constants), so the two paths cannot drift apart."""
     from offboard.control.controllers import registry
+    from offboard.control.controllers.lqr import LqrController
     from offboard.control.controllers.shaping import ShapedCascade
     from offboard.control.controllers.swing_feedback import SwingFeedbackCascade
-    from offboard.harness.batched_controllers import CascadeStep, SwingFeedbackStep
+    from offboard.harness.batched_controllers import CascadeStep, LqrStep, SwingFeedbackStep
 
     if law == "smc":
         return None, None
     scalar = registry.make(law, vehicle)
+    if isinstance(scalar, LqrController):
+        return LqrStep(scalar, runs), None
     if isinstance(scalar, SwingFeedbackCascade):
         return SwingFeedbackStep(vehicle, scalar.gains, runs, scalar), None
     if isinstance(scalar, ShapedCascade):
@@ -271,7 +274,7 @@ def simulate(
     n_ticks = math.floor(T / dt + 1e-9) + 1
     x = np.array([s.initial_state for s in scs], dtype=float).T  # (18, B)
     mem = np.zeros((8, B))
-    cascade, shaper = _batched_law(law, params.vehicle, B)
+    baseline, shaper = _batched_law(law, params.vehicle, B)
     reference = scs[0].reference
     gust = _Gusts([s.disturbance for s in scs])
     keep = list(range(0, n_ticks, log_every)) if log_every > 0 else []
@@ -337,11 +340,11 @@ def simulate(
         else:
             est = truth
         ref = reference.sample(t)
-        if cascade is not None:
+        if baseline is not None:
             rfx, rfy, rz, rpsi = ref.fx, ref.fy, ref.z, ref.psi
             if shaper is not None:  # one reference for all runs: shaped once
                 rfx, rfy, rz, rpsi = shaper(t, rfx, rfy, rz, rpsi)
-            uc, sat = cascade(t, est, rfx, rfy, rz, rpsi)
+            uc, sat = baseline(t, est, rfx, rfy, rz, rpsi)
         else:
             uc, sat, mem = smc_step(0.0 if tick == 0 else dt, est, ref.fx, ref.fy, ref.z, ref.psi, mem, params)
         if kf is not None:  # offboard.harness.sim.run(command_lag=True): through the nominal motor lag with motors

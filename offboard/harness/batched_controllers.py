@@ -1,13 +1,14 @@
 """The controllers of the batched sweep path (``offboard.harness.batched``) over many runs at once: the sliding-mode law
 ``offboard.control.smc.step`` (:func:`smc_step`), the stock cascade ``offboard.control.controllers.cascade``
 (:class:`CascadeStep`; behind a shaped reference, ``zv`` / ``zvd``) and the swing-feedback cascade
-(:class:`SwingFeedbackStep`) with the same expressions in the same order, the
+(:class:`SwingFeedbackStep`) and LQR (:class:`LqrStep`) with the same expressions in the same order, the
 runs' estimates and memories as arrays (``tests/test_sweep.py`` checks them against the scalar path).
 """
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -16,6 +17,7 @@ from estimators.model.flatness import flat_constants
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc
 from offboard.control.controllers.cascade import CascadeGains
+from offboard.control.controllers.lqr import LqrController
 from offboard.control.controllers.swing_feedback import SwingFeedbackCascade
 
 Array = np.ndarray
@@ -302,3 +304,109 @@ class SwingFeedbackStep(CascadeStep):
         oax = np.where(far, 0.0, -self.vel_p * est["fx"][3])
         oay = np.where(far, 0.0, -self.vel_p * est["fy"][3])
         return ox, oy, vel_x, vel_y, oax, oay
+
+
+class LqrStep:
+    """``offboard.control.controllers.lqr.LqrController.step`` over runs: the reference state from the flat
+    reference, the errors turned into the heading frame, ``du = -K e`` summed in the scalar law's order, the
+    integrals held while anything saturates. Its memory: the four integrals and each run's last step time (a run
+    whose estimate is not finite gets the hover command and keeps them)."""
+
+    def __init__(self, law: LqrController, runs: int) -> None:
+        self.k = law._k
+        self.kf = law.kf
+        self.vehicle = law.vehicle
+        self.thrust_max, self.torque_max = law.thrust_max, law.torque_max
+        self.ints = [np.zeros(runs) for _ in range(4)]
+        self.t_last = np.full(runs, np.nan)
+
+    def __call__(
+        self,
+        t: float,
+        est: dict[str, Array],
+        rfx: tuple[float, ...],
+        rfy: tuple[float, ...],
+        rz: tuple[float, ...],
+        rpsi: tuple[float, ...],
+    ) -> tuple[Array, Array]:
+        """(u (4, B), saturated (B,)) at time ``t`` (s), as :meth:`CascadeStep.__call__`."""
+        v = self.vehicle
+        fx, fy = est["fx"], est["fy"]
+        names = ("z", "z_rate", "phi", "theta", "psi", "phi_rate", "theta_rate", "psi_rate")
+        swing = ("alpha_x", "alpha_y", "alpha_x_rate", "alpha_y_rate")
+        finite = np.isfinite(fx.sum(axis=0) + fy.sum(axis=0) + sum(est[n] for n in (*names, *swing)))
+        k = self.kf
+        l, g, c, w2 = k.l, k.g, k.c, k.omega2
+        dt = np.where(np.isnan(self.t_last), 0.0, np.maximum(0.0, t - self.t_last))
+        ay_r, ay_rd = -rfx[2] / g, -rfx[3] / g
+        ax_r, ax_rd = -rfy[2] / g, -rfy[3] / g
+        x_r, vx_r = rfx[0] - l * ay_r, rfx[1] - l * ay_rd
+        y_r, vy_r = rfy[0] - l * ax_r, rfy[1] - l * ax_rd
+        nx_r, nxd_r, nxdd_r = rfx[4] / c - ay_r, rfx[5] / c - ay_rd, (rfx[6] + w2 * rfx[4]) / c
+        ny_r, nyd_r, nydd_r = rfy[4] / c - ax_r, rfy[5] / c - ax_rd, (rfy[6] + w2 * rfy[4]) / c
+        x, y = fx[0] - l * est["alpha_y"], fy[0] - l * est["alpha_x"]
+        vx, vy = fx[1] - l * est["alpha_y_rate"], fy[1] - l * est["alpha_x_rate"]
+        psi = est["psi"]
+        cp, sp = np.cos(psi), np.sin(psi)
+
+        def rot(a: Any, b: Any) -> tuple[Array, Array]:
+            return cp * a + sp * b, -sp * a + cp * b
+
+        ex, ey = rot(x - x_r, y - y_r)
+        evx, evy = rot(vx - vx_r, vy - vy_r)
+        eay, eax = rot(est["alpha_y"] - ay_r, est["alpha_x"] - ax_r)
+        eayd, eaxd = rot(est["alpha_y_rate"] - ay_rd, est["alpha_x_rate"] - ax_rd)
+        th_r, mphi_r = rot(nx_r, ny_r)
+        thd_r, mphid_r = rot(nxd_r, nyd_r)
+        thdd_r, mphidd_r = rot(nxdd_r, nydd_r)
+        ez, evz = est["z"] - rz[0], est["z_rate"] - rz[1]
+        epsi, er = wrap_angles(psi - rpsi[0]), est["psi_rate"] - rpsi[1]
+        i = self.ints
+        ints = [i[0] + ex * dt, i[1] + ey * dt, i[2] + ez * dt, i[3] + epsi * dt]
+        e = (
+            ex,
+            ey,
+            ez,
+            evx,
+            evy,
+            evz,
+            est["phi"] + mphi_r,
+            est["theta"] - th_r,
+            epsi,
+            est["phi_rate"] + mphid_r,
+            est["theta_rate"] - thd_r,
+            er,
+            eay,
+            eax,
+            eayd,
+            eaxd,
+            *ints,
+        )
+        du = []
+        for row in self.k:  # Python's sum over the row, in its order (0 + k0 e0 + k1 e1 + ...)
+            acc: Any = 0
+            for kj, ej in zip(row, e):
+                acc = acc + kj * ej
+            du.append(-acc)
+        Ix, Iy, Iz = v.inertia
+        thrust = v.total_mass * (g + rz[2]) + du[0]
+        tau_phi = -Ix * mphidd_r + du[1]
+        tau_theta = Iy * thdd_r + du[2]
+        tau_psi = Iz * rpsi[2] + du[3]
+        sat = (thrust > self.thrust_max) | (thrust < 0.0)
+        thrust = np.minimum(np.maximum(thrust, 0.0), self.thrust_max)
+        tp, tt, ts = self.torque_max
+        sat = sat | (np.abs(tau_phi) > tp) | (np.abs(tau_theta) > tt) | (np.abs(tau_psi) > ts)
+        u = np.stack(
+            [
+                thrust,
+                np.maximum(-tp, np.minimum(tp, tau_phi)),
+                np.maximum(-tt, np.minimum(tt, tau_theta)),
+                np.maximum(-ts, np.minimum(ts, tau_psi)),
+            ]
+        )
+        keep = finite & ~sat
+        self.ints = [np.where(keep, new, old) for new, old in zip(ints, i)]
+        self.t_last = np.where(finite, t, self.t_last)
+        u = np.where(finite, u, np.array([[v.hover_thrust], [0.0], [0.0], [0.0]]))
+        return u, finite & sat
