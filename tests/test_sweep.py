@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -286,3 +287,41 @@ def test_the_sweep_report_html_holds_the_success_rates_per_bin(tmp_path: Path) -
     assert "a: 6 runs, b: 6 runs" in page and "slung-sweep" in page and "0.666667" in page
     # self-contained: plotly inlined, nothing fetched from the network
     assert "<script src=" not in page and "<link" not in page and "Plotly.newPlot" in page
+
+
+@pytest.mark.parametrize("law", ["cascade", "zvd", "swing-feedback", "lqr"])
+def test_batched_baselines_give_the_scalar_commands_and_hover_on_a_non_finite_estimate(law: str) -> None:
+    """The batched baselines' commands against the registry's scalar controllers fed the same estimates, tick by
+    tick (no plant between them): equal to 1e-12, and a run whose estimate turns NaN for a tick gets the hover
+    command while the others fly on, then resumes with the memory it had, as the scalar law does."""
+    from estimators.model.control_state import ControlState
+    from offboard.control.scenarios import make_scenario
+    from offboard.harness.batched import batched_law
+
+    rng = np.random.default_rng(7)
+    reference = make_scenario("rest-to-rest").reference
+    batch, shaper = batched_law(law, V, 3)
+    scalars = [registry.make(law, V) for _ in range(3)]
+    for tick in range(60):
+        t = 0.02 * tick
+        states = []
+        for b in range(3):
+            fx = tuple(rng.normal(0.0, 0.3, 6))
+            fy = tuple(rng.normal(0.0, 0.3, 6))
+            rest = tuple(rng.normal(0.0, 0.05, 12))
+            if b == 1 and tick == 30:
+                rest = (math.nan, *rest[1:])
+            states.append(ControlState(fx, fy, *rest))
+        est = {
+            "fx": np.array([s.fx for s in states]).T,
+            "fy": np.array([s.fy for s in states]).T,
+            **{n: np.array([getattr(s, n) for s in states]) for n in ControlState._fields[2:]},
+        }
+        ref = reference.sample(t)
+        want = [c.step(t, s, ref.fx, ref.fy, ref.z, ref.psi) for c, s in zip(scalars, states)]
+        refs = (ref.fx, ref.fy, ref.z, ref.psi) if shaper is None else shaper(t, ref.fx, ref.fy, ref.z, ref.psi)
+        u, _ = batch(t, est, *refs)
+        for b, w in enumerate(want):
+            np.testing.assert_allclose(u[:, b], (w.thrust, w.tau_phi, w.tau_theta, w.tau_psi), rtol=0, atol=1e-12)
+        if tick == 30:
+            assert u[0, 1] == V.hover_thrust and not u[1:, 1].any()

@@ -207,7 +207,7 @@ class Figures:
 BATCHED_LAWS = ("smc", "cascade", "zv", "zvd", "swing-feedback", "lqr")
 
 
-def _batched_law(law: str, vehicle: Any, runs: int) -> tuple[Any, Any]:
+def batched_law(law: str, vehicle: Any, runs: int) -> tuple[Any, Any]:
     """(the law over runs, the reference shaper in front of it) for a row of ``BATCHED_LAWS`` other than ``smc``
     on the nominal ``vehicle``; (None, None) for ``smc``. The registry's own controller gives the parameters (gains,
     the shaper's impulses, the applet's constants), so the two paths cannot drift apart."""
@@ -274,7 +274,7 @@ def simulate(
     n_ticks = math.floor(T / dt + 1e-9) + 1
     x = np.array([s.initial_state for s in scs], dtype=float).T  # (18, B)
     mem = np.zeros((8, B))
-    baseline, shaper = _batched_law(law, params.vehicle, B)
+    baseline, shaper = batched_law(law, params.vehicle, B)
     reference = scs[0].reference
     gust = _Gusts([s.disturbance for s in scs])
     keep = list(range(0, n_ticks, log_every)) if log_every > 0 else []

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from estimators.filters.batched_kf import wrap_angles
+from estimators.model.control_state import ControlState
 from estimators.model.flatness import flat_constants
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc
@@ -165,31 +166,25 @@ def smc_step(
     return u, s1 | s2 | s3 | s4, new_mem
 
 
-class CascadeStep:
-    """``offboard.control.controllers.cascade.CascadeController.step`` over runs (the swing-unaware stock cascade:
-    position P, velocity PID, thrust vector with PX4's tilt limit, attitude P, rate PI), with the same expressions
-    in the same order. Its memory: the velocity integrators, the rate integrators and each run's time of its last
-    step (a run whose estimate is not finite gets the hover command and keeps its memory, as the scalar law
-    does)."""
+#: the estimate's named scalars (``ControlState`` after ``fx`` and ``fy``), whose sum with the chains' screens a run
+_SCALARS = ControlState._fields[2:]
 
-    def __init__(self, vehicle: Vehicle, gains: CascadeGains, runs: int) -> None:
+
+class BatchedBaseline:
+    """What the batched baselines share: each run's time of its last step (its ``dt``), and a run whose estimate
+    is not finite (``ControlState.is_finite``) gets the nominal hover command and keeps its memory, as the scalar
+    laws do. Subclasses give :meth:`step`."""
+
+    def __init__(self, vehicle: Vehicle, runs: int) -> None:
         self.vehicle = vehicle
-        self.gains = gains
-        self.l = vehicle.cable_length
-        self.mt, self.m = vehicle.total_mass, vehicle.mass_load
-        self.acc_gain = vehicle.gravity / vehicle.mass_vehicle
-        self.g = vehicle.gravity
-        self.thrust_max = vehicle.thrust_max
-        self.torque_max = (vehicle.roll_pitch_torque_max, vehicle.roll_pitch_torque_max, vehicle.yaw_torque_max)
         self.hover = vehicle.hover_thrust
-        zeros = np.zeros(runs)
-        self.ivx, self.ivy, self.ivz, self.i_p, self.i_q = (zeros.copy() for _ in range(5))
         self.t_last = np.full(runs, np.nan)
 
-    def offsets(self, dt: Array, est: dict[str, Array], finite: Array) -> tuple[Array | float, ...]:
-        """The horizontal position, velocity and acceleration setpoint offsets (x, y each; world): none for the
-        stock cascade (``CascadeController.offsets``; the swing-feedback baseline's hook)."""
-        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    def step(
+        self, t: float, dt: Array, finite: Array, est: dict[str, Array], refs: tuple[tuple[float, ...], ...]
+    ) -> tuple[Array, Array]:
+        """(u (4, B), saturated (B,)); keep memory only where ``finite``."""
+        raise NotImplementedError
 
     def __call__(
         self,
@@ -200,14 +195,46 @@ class CascadeStep:
         rz: tuple[float, ...],
         rpsi: tuple[float, ...],
     ) -> tuple[Array, Array]:
-        """(u (4, B): thrust and torques, saturated (B,) bool: a torque, the thrust or the tilt limit) at time
-        ``t`` (s) for the runs' estimates and the one reference (orders 0..6 of ``F_x``, ``F_y``; ``z``, ``psi``)."""
+        """(u (4, B): thrust and torques, saturated (B,) bool) at time ``t`` (s) for the runs' estimates and the
+        one reference (orders 0..6 of ``F_x``, ``F_y``; ``z``, ``psi``)."""
+        finite = np.isfinite(est["fx"].sum(axis=0) + est["fy"].sum(axis=0) + sum(est[n] for n in _SCALARS))
+        dt = np.where(np.isnan(self.t_last), 0.0, np.maximum(0.0, t - self.t_last))
+        u, sat = self.step(t, dt, finite, est, (rfx, rfy, rz, rpsi))
+        self.t_last = np.where(finite, t, self.t_last)
+        return np.where(finite, u, np.array([[self.hover], [0.0], [0.0], [0.0]])), finite & sat
+
+
+class CascadeStep(BatchedBaseline):
+    """``offboard.control.controllers.cascade.CascadeController.step`` over runs (the swing-unaware stock cascade:
+    position P, velocity PID, thrust vector with PX4's tilt limit, attitude P, rate PI), with the same expressions
+    in the same order. Its memory: the velocity integrators, the rate integrators and each run's time of its last
+    step (a run whose estimate is not finite gets the hover command and keeps its memory, as the scalar law
+    does)."""
+
+    def __init__(self, vehicle: Vehicle, gains: CascadeGains, runs: int) -> None:
+        super().__init__(vehicle, runs)
+        self.gains = gains
+        self.l = vehicle.cable_length
+        self.mt, self.m = vehicle.total_mass, vehicle.mass_load
+        self.acc_gain = vehicle.gravity / vehicle.mass_vehicle
+        self.g = vehicle.gravity
+        self.thrust_max = vehicle.thrust_max
+        self.torque_max = (vehicle.roll_pitch_torque_max, vehicle.roll_pitch_torque_max, vehicle.yaw_torque_max)
+        zeros = np.zeros(runs)
+        self.ivx, self.ivy, self.ivz, self.i_p, self.i_q = (zeros.copy() for _ in range(5))
+
+    def offsets(self, dt: Array, est: dict[str, Array], finite: Array) -> tuple[Array | float, ...]:
+        """The horizontal position, velocity and acceleration setpoint offsets (x, y each; world): none for the
+        stock cascade (``CascadeController.offsets``; the swing-feedback baseline's hook)."""
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+
+    def step(
+        self, t: float, dt: Array, finite: Array, est: dict[str, Array], refs: tuple[tuple[float, ...], ...]
+    ) -> tuple[Array, Array]:
+        """The cascade's step (saturated: a torque, the thrust or the tilt limit)."""
+        rfx, rfy, rz, rpsi = refs
         G = self.gains
         fx, fy = est["fx"], est["fy"]
-        rest = ("z", "z_rate", "phi", "theta", "psi", "phi_rate", "theta_rate", "psi_rate")
-        swing = ("alpha_x", "alpha_y", "alpha_x_rate", "alpha_y_rate")
-        finite = np.isfinite(fx.sum(axis=0) + fy.sum(axis=0) + sum(est[n] for n in (*rest, *swing)))
-        dt = np.where(np.isnan(self.t_last), 0.0, np.maximum(0.0, t - self.t_last))
         l = self.l
         x, y = fx[0] - l * est["alpha_y"], fy[0] - l * est["alpha_x"]
         vx, vy = fx[1] - l * est["alpha_y_rate"], fy[1] - l * est["alpha_x_rate"]
@@ -272,10 +299,7 @@ class CascadeStep:
         self.ivx = np.where(finite & ~tilted, ivx, self.ivx)
         self.ivy = np.where(finite & ~tilted, ivy, self.ivy)
         self.ivz = np.where(finite & (thrust < self.thrust_max), ivz, self.ivz)
-        self.t_last = np.where(finite, t, self.t_last)
-        u = np.stack([thrust, tau_phi, tau_theta, tau_psi])
-        u = np.where(finite, u, np.array([[self.hover], [0.0], [0.0], [0.0]]))
-        return u, finite & (s_p | s_q | s_r | s_t | tilted)
+        return np.stack([thrust, tau_phi, tau_theta, tau_psi]), s_p | s_q | s_r | s_t | tilted
 
 
 class SwingFeedbackStep(CascadeStep):
@@ -306,38 +330,28 @@ class SwingFeedbackStep(CascadeStep):
         return ox, oy, vel_x, vel_y, oax, oay
 
 
-class LqrStep:
+class LqrStep(BatchedBaseline):
     """``offboard.control.controllers.lqr.LqrController.step`` over runs: the reference state from the flat
     reference, the errors turned into the heading frame, ``du = -K e`` summed in the scalar law's order, the
     integrals held while anything saturates. Its memory: the four integrals and each run's last step time (a run
     whose estimate is not finite gets the hover command and keeps them)."""
 
     def __init__(self, law: LqrController, runs: int) -> None:
+        super().__init__(law.vehicle, runs)
         self.k = law._k
         self.kf = law.kf
-        self.vehicle = law.vehicle
         self.thrust_max, self.torque_max = law.thrust_max, law.torque_max
         self.ints = [np.zeros(runs) for _ in range(4)]
-        self.t_last = np.full(runs, np.nan)
 
-    def __call__(
-        self,
-        t: float,
-        est: dict[str, Array],
-        rfx: tuple[float, ...],
-        rfy: tuple[float, ...],
-        rz: tuple[float, ...],
-        rpsi: tuple[float, ...],
+    def step(
+        self, t: float, dt: Array, finite: Array, est: dict[str, Array], refs: tuple[tuple[float, ...], ...]
     ) -> tuple[Array, Array]:
-        """(u (4, B), saturated (B,)) at time ``t`` (s), as :meth:`CascadeStep.__call__`."""
+        """The LQR step (saturated: the thrust or a torque)."""
+        rfx, rfy, rz, rpsi = refs
         v = self.vehicle
         fx, fy = est["fx"], est["fy"]
-        names = ("z", "z_rate", "phi", "theta", "psi", "phi_rate", "theta_rate", "psi_rate")
-        swing = ("alpha_x", "alpha_y", "alpha_x_rate", "alpha_y_rate")
-        finite = np.isfinite(fx.sum(axis=0) + fy.sum(axis=0) + sum(est[n] for n in (*names, *swing)))
         k = self.kf
         l, g, c, w2 = k.l, k.g, k.c, k.omega2
-        dt = np.where(np.isnan(self.t_last), 0.0, np.maximum(0.0, t - self.t_last))
         ay_r, ay_rd = -rfx[2] / g, -rfx[3] / g
         ax_r, ax_rd = -rfy[2] / g, -rfy[3] / g
         x_r, vx_r = rfx[0] - l * ay_r, rfx[1] - l * ay_rd
@@ -407,6 +421,4 @@ class LqrStep:
         )
         keep = finite & ~sat
         self.ints = [np.where(keep, new, old) for new, old in zip(ints, i)]
-        self.t_last = np.where(finite, t, self.t_last)
-        u = np.where(finite, u, np.array([[v.hover_thrust], [0.0], [0.0], [0.0]]))
-        return u, finite & sat
+        return u, sat
