@@ -81,20 +81,26 @@ def _k():
     return flat_constants(V)
 
 
-def test_lqr_gains_are_python_controls_and_stabilize_the_linearization() -> None:
+@pytest.mark.parametrize("lag_s", [0.0, V.motor_time_constant])
+def test_lqr_gains_are_python_controls_and_stabilize_the_linearization(lag_s: float) -> None:
+    """Without and with the motors' first-order lag in the design model (the row's default: the vehicle file's
+    ``motor_time_constant_s``, four more states for the delivered thrust and torques)."""
     import control
 
-    lm_A, lm_B = augmented_model(V)
+    lm_A, lm_B = augmented_model(V, lag_s)
     Q, R = LqrWeights().matrices()
+    n = 24 if lag_s > 0.0 else 20
+    Q = np.pad(Q, ((0, n - 20), (0, n - 20)))
     K_ref, S, _ = control.lqr(lm_A, lm_B, Q, R)
-    law = LqrController(V)
+    law = LqrController(V, lag_s=lag_s)
     np.testing.assert_allclose(law.K, K_ref, rtol=1e-12, atol=1e-12)
-    assert law.K.shape == (4, 20)
+    assert law.K.shape == (4, n)
     assert np.abs(law.K[:, 12:16]).max() > 1e-3  # the swing states are fed back
     assert np.linalg.eigvals(lm_A - lm_B @ law.K).real.max() < 0.0
     # the Riccati equation holds for the gain (an independent check of the solver's answer)
     resid = lm_A.T @ S + S @ lm_A - S @ lm_B @ np.linalg.solve(R, lm_B.T) @ S + Q
     assert np.abs(resid).max() < 1e-6 * np.abs(Q).max()
+    assert LqrController(V).lag_s == V.motor_time_constant
 
 
 @pytest.mark.parametrize("kind", ["zv", "zvd"])

@@ -333,8 +333,9 @@ class SwingFeedbackStep(CascadeStep):
 class LqrStep(BatchedBaseline):
     """``offboard.control.controllers.lqr.LqrController.step`` over runs: the reference state from the flat
     reference, the errors turned into the heading frame, ``du = -K e`` summed in the scalar law's order, the
-    integrals held while anything saturates. Its memory: the four integrals and each run's last step time (a run
-    whose estimate is not finite gets the hover command and keeps them)."""
+    integrals held while anything saturates, the motors' lag modelled on the law's own commands. Its memory: the
+    four integrals, the modelled delivered thrust and torques, the last commands and each run's last step time (a
+    run whose estimate is not finite gets the hover command and keeps them)."""
 
     def __init__(self, law: LqrController, runs: int) -> None:
         super().__init__(law.vehicle, runs)
@@ -342,6 +343,9 @@ class LqrStep(BatchedBaseline):
         self.kf = law.kf
         self.thrust_max, self.torque_max = law.thrust_max, law.torque_max
         self.ints = [np.zeros(runs) for _ in range(4)]
+        self.lag_s = law.lag_s
+        self.delivered = [np.full(runs, np.nan) for _ in range(4)]  # NaN: before the run's first step
+        self.sent = [np.zeros(runs) for _ in range(4)]
 
     def step(
         self, t: float, dt: Array, finite: Array, est: dict[str, Array], refs: tuple[tuple[float, ...], ...]
@@ -377,6 +381,15 @@ class LqrStep(BatchedBaseline):
         epsi, er = wrap_angles(psi - rpsi[0]), est["psi_rate"] - rpsi[1]
         i = self.ints
         ints = [i[0] + ex * dt, i[1] + ey * dt, i[2] + ez * dt, i[3] + epsi * dt]
+        Ix, Iy, Iz = v.inertia
+        ff = (v.total_mass * (g + rz[2]), -Ix * mphidd_r, Iy * thdd_r, Iz * rpsi[2])
+        lagged: tuple[Array, ...] = ()
+        if self.lag_s > 0.0:  # the motors' state, as the scalar law models it
+            first = np.isnan(self.delivered[0])
+            a = np.where(dt > 0.0, 1.0 - np.exp(-dt / self.lag_s), 0.0)
+            delivered = [np.where(first, f, dj + a * (sj - dj)) for dj, sj, f in zip(self.delivered, self.sent, ff)]
+            self.delivered = [np.where(finite, n, o) for n, o in zip(delivered, self.delivered)]
+            lagged = tuple(dj - fj for dj, fj in zip(delivered, ff))
         e = (
             ex,
             ey,
@@ -395,6 +408,7 @@ class LqrStep(BatchedBaseline):
             eayd,
             eaxd,
             *ints,
+            *lagged,
         )
         du = []
         for row in self.k:  # Python's sum over the row, in its order (0 + k0 e0 + k1 e1 + ...)
@@ -402,11 +416,10 @@ class LqrStep(BatchedBaseline):
             for kj, ej in zip(row, e):
                 acc = acc + kj * ej
             du.append(-acc)
-        Ix, Iy, Iz = v.inertia
-        thrust = v.total_mass * (g + rz[2]) + du[0]
-        tau_phi = -Ix * mphidd_r + du[1]
-        tau_theta = Iy * thdd_r + du[2]
-        tau_psi = Iz * rpsi[2] + du[3]
+        thrust = ff[0] + du[0]
+        tau_phi = ff[1] + du[1]
+        tau_theta = ff[2] + du[2]
+        tau_psi = ff[3] + du[3]
         sat = (thrust > self.thrust_max) | (thrust < 0.0)
         thrust = np.minimum(np.maximum(thrust, 0.0), self.thrust_max)
         tp, tt, ts = self.torque_max
@@ -421,4 +434,5 @@ class LqrStep(BatchedBaseline):
         )
         keep = finite & ~sat
         self.ints = [np.where(keep, new, old) for new, old in zip(ints, i)]
+        self.sent = [np.where(finite, n, o) for n, o in zip(u, self.sent)]
         return u, sat

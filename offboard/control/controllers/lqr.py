@@ -3,8 +3,13 @@ the swing angles and rates in the state, integral action on position, height and
 as feed-forward.
 
 Design (python-control's ``lqr``): the 16-state model at heading 0 augmented with the integrals of the x, y, z
-and heading errors (20 states), Bryson's rule for the weights (each state and input divided by the largest
-deviation one accepts, :class:`LqrWeights`). The gain is computed once, for the controller's nominal vehicle.
+and heading errors (20 states) and the motors' first-order lag (the vehicle file's ``motor_time_constant_s``: the
+delivered thrust and torques as four more states, with no weight of their own; 0 leaves them out), Bryson's rule
+for the weights (each state and input divided by the largest deviation one accepts, :class:`LqrWeights`). The
+gain is computed once, for the controller's nominal vehicle. The delivered thrust and torques the law feeds back
+are its own clipped commands through that lag (as the sliding-mode law's actuation lag, docs/model.md C-13):
+without them the design had no margin for 35-40 ms motors, and diverged on light vehicles in the sweep
+(docs/compare.md).
 
 Tracking (model frame, SI, rad): the reference's flat outputs give the whole reference state of the linear
 model (``estimators.model.flatness``: ``a* = -F*''/g``, ``p* = F* - l a*``, the tilt ``n* = F*^(4)/c - a*``) and the
@@ -66,24 +71,35 @@ class LqrWeights:
         return np.diag(1.0 / np.square(q)), np.diag(1.0 / np.square(r))
 
 
-def augmented_model(vehicle: Vehicle) -> tuple[np.ndarray, np.ndarray]:
-    """(A, B) of the 20-state design model: ``offboard.control.linear_model`` at heading 0 plus the error integrals."""
+def augmented_model(vehicle: Vehicle, lag_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of the design model: ``offboard.control.linear_model`` at heading 0 plus the error integrals (20
+    states); with ``lag_s`` > 0 the motors' first-order lag too, the delivered thrust and torques as four more
+    states (``u_a' = (u - u_a) / lag_s``, the plant driven by ``u_a``: 24 states)."""
     lm = linear_model(vehicle, 0.0)
-    A = np.zeros((20, 20))
+    n = 24 if lag_s > 0.0 else 20
+    A = np.zeros((n, n))
     A[:16, :16] = lm.A
     for k, idx in enumerate((0, 1, 2, 8)):  # d/dt int_e = e
         A[16 + k, idx] = 1.0
-    B = np.zeros((20, 4))
-    B[:16] = lm.B
+    B = np.zeros((n, 4))
+    if lag_s > 0.0:
+        A[:16, 20:24] = lm.B
+        A[20:24, 20:24] = -np.eye(4) / lag_s
+        B[20:24] = np.eye(4) / lag_s
+    else:
+        B[:16] = lm.B
     return A, B
 
 
-def lqr_gain(vehicle: Vehicle, weights: LqrWeights | None = None) -> np.ndarray:
-    """The 4 x 20 gain of python-control's ``lqr`` on :func:`augmented_model` with :meth:`LqrWeights.matrices`."""
+def lqr_gain(vehicle: Vehicle, weights: LqrWeights | None = None, lag_s: float = 0.0) -> np.ndarray:
+    """The 4 x 20 (4 x 24 with the motors' lag) gain of python-control's ``lqr`` on :func:`augmented_model` with
+    :meth:`LqrWeights.matrices` (no weight on the delivered-input states: the commands carry ``R``)."""
     import control
 
-    A, B = augmented_model(vehicle)
+    A, B = augmented_model(vehicle, lag_s)
     Q, R = (weights or LqrWeights()).matrices()
+    if lag_s > 0.0:
+        Q = np.pad(Q, ((0, 4), (0, 4)))
     K, _, _ = control.lqr(A, B, Q, R)
     return np.asarray(K)
 
@@ -91,10 +107,14 @@ def lqr_gain(vehicle: Vehicle, weights: LqrWeights | None = None) -> np.ndarray:
 class LqrController:
     """``lqr``: see the module docstring."""
 
-    def __init__(self, vehicle: Vehicle, weights: LqrWeights | None = None, name: str = "lqr") -> None:
+    def __init__(
+        self, vehicle: Vehicle, weights: LqrWeights | None = None, name: str = "lqr", lag_s: float | None = None
+    ) -> None:
         self.name = name
         self.vehicle = vehicle
-        self.K = lqr_gain(vehicle, weights)
+        #: the motors' lag in the design (s; default: the vehicle file's ``motor_time_constant_s``, 0: none)
+        self.lag_s = vehicle.motor_time_constant if lag_s is None else lag_s
+        self.K = lqr_gain(vehicle, weights, self.lag_s)
         self._k = [[float(v) for v in row] for row in self.K]
         self.kf = flat_constants(vehicle)
         self.thrust_max = vehicle.thrust_max
@@ -104,6 +124,9 @@ class LqrController:
     def reset(self) -> None:
         self._int = [0.0, 0.0, 0.0, 0.0]
         self._t: float | None = None
+        #: the delivered thrust and torques the law models (its own clipped commands through the motors' lag)
+        self._delivered: tuple[float, ...] | None = None
+        self._sent = (0.0, 0.0, 0.0, 0.0)
 
     def step(self, t: float, est: ControlState, ref_fx: Ref, ref_fy: Ref, ref_z: Ref, ref_psi: Ref) -> Command:
         v = self.vehicle
@@ -142,6 +165,18 @@ class LqrController:
         epsi, er = wrap_angle(psi - ref_psi[0]), est.psi_rate - ref_psi[1]
         i = self._int
         ints = [i[0] + ex * dt, i[1] + ey * dt, i[2] + ez * dt, i[3] + epsi * dt]
+        Ix, Iy, Iz = v.inertia
+        ff = (v.total_mass * (g + ref_z[2]), -Ix * mphidd_r, Iy * thdd_r, Iz * ref_psi[2])
+        lagged: tuple[float, ...] = ()
+        if self.lag_s > 0.0:  # the motors' state: the previous commands through their first-order lag
+            d = self._delivered
+            if d is None:
+                delivered = ff  # at the start the motors give what the reference asks (a flight starts at rest)
+            else:
+                a = 1.0 - math.exp(-dt / self.lag_s) if dt > 0.0 else 0.0
+                delivered = tuple(dj + a * (sj - dj) for dj, sj in zip(d, self._sent))
+            self._delivered = delivered
+            lagged = tuple(dj - fj for dj, fj in zip(delivered, ff))
         e = (
             ex,
             ey,
@@ -160,13 +195,13 @@ class LqrController:
             eayd,
             eaxd,
             *ints,
+            *lagged,
         )
         du = [-sum(kj * ej for kj, ej in zip(row, e)) for row in self._k]
-        Ix, Iy, Iz = v.inertia
-        thrust = v.total_mass * (g + ref_z[2]) + du[0]
-        tau_phi = -Ix * mphidd_r + du[1]
-        tau_theta = Iy * thdd_r + du[2]
-        tau_psi = Iz * ref_psi[2] + du[3]
+        thrust = ff[0] + du[0]
+        tau_phi = ff[1] + du[1]
+        tau_theta = ff[2] + du[2]
+        tau_psi = ff[3] + du[3]
         sat = False
         if thrust > self.thrust_max or thrust < 0.0:
             thrust, sat = min(max(thrust, 0.0), self.thrust_max), True
@@ -177,6 +212,7 @@ class LqrController:
             sat = sat or abs(val) > lim
         if not sat:
             self._int = ints
+        self._sent = (thrust, clipped[0], clipped[1], clipped[2])
         return Command(thrust, clipped[0], clipped[1], clipped[2], ex, ey, ez, epsi, sat, True)
 
     def memory_fields(self) -> tuple[float, float, float, float]:
