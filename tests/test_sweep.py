@@ -38,6 +38,15 @@ def _short_file(
     return p
 
 
+def _drawn_runs(cfg: sweep.SweepConfig) -> tuple[list, list, list, list, list[int]]:
+    """Runs 0-2 of the file: their draws, true vehicles, scenarios, sensor presets and sensor seeds."""
+    draws = [sweep.draw(cfg, r, V) for r in range(3)]
+    vehicles = [sweep.plant_vehicle(V, d) for d in draws]
+    scs = [sweep.scenario(cfg, d) for d in draws]
+    presets = [sweep.sensor_preset(cfg, d) for d in draws]
+    return draws, vehicles, scs, presets, [int(d["sensor_seed"]) for d in draws]
+
+
 @pytest.mark.parametrize("switching", ["sign", "smooth"])
 def test_batched_path_equals_the_scalar_path(tmp_path: Path, switching: str) -> None:
     """Three drawn runs (different masses, cable lengths, inertia, gusts and initial swings) advanced together
@@ -82,13 +91,9 @@ def test_batched_path_with_the_filter_equals_the_scalar_path(tmp_path: Path) -> 
     trajectories and the estimates' errors of ``offboard.harness.sim.run`` on each, to 1e-9."""
     cfg = sweep.load_config(_short_file(tmp_path, estimator="kf", move=1.0, hold=0.5))
     params = registry.smc_params(V)
-    draws = [sweep.draw(cfg, r, V) for r in range(3)]
+    draws, vehicles, scs, presets, seeds = _drawn_runs(cfg)
     assert max(d["sensor_latency_s"] for d in draws) > 0.006  # past the 12 ms horizon for the 6 ms positions
-    vehicles = [sweep.plant_vehicle(V, d) for d in draws]
     assert len({v.motor_time_constant for v in vehicles}) == 3
-    scs = [sweep.scenario(cfg, d) for d in draws]
-    presets = [sweep.sensor_preset(cfg, d) for d in draws]
-    seeds = [int(d["sensor_seed"]) for d in draws]
     log = batched.simulate(
         scs, vehicles, params, estimator="kf", actuators="mixer", sensors=presets, seeds=seeds, load_sensor=True
     )
@@ -119,11 +124,7 @@ def test_batched_baselines_with_the_filter_equal_the_scalar_path(tmp_path: Path,
     ``offboard.harness.sim.run`` flying the registry's controller on each, to 1e-9."""
     cfg = sweep.load_config(_short_file(tmp_path, estimator="kf", move=4.0, hold=0.5))
     params = registry.smc_params(V)
-    draws = [sweep.draw(cfg, r, V) for r in range(3)]
-    vehicles = [sweep.plant_vehicle(V, d) for d in draws]
-    scs = [sweep.scenario(cfg, d) for d in draws]
-    presets = [sweep.sensor_preset(cfg, d) for d in draws]
-    seeds = [int(d["sensor_seed"]) for d in draws]
+    _, vehicles, scs, presets, seeds = _drawn_runs(cfg)
     log = batched.simulate(
         scs, vehicles, params, estimator="kf", actuators="mixer", sensors=presets, seeds=seeds, law=law
     )

@@ -677,8 +677,7 @@ class FlightLoop:
         assert self._torque_fallback is not None
         self.params = self._torque_fallback
         self.mapper = CommandMapper(self.vehicle, self.mapper.config, self.mapper.autopilot)
-        self.controller = law_for(self.params)
-        self.flew_torque_fallback = True
+        self.flew_torque_fallback = True  # the law itself is built from self.params at the start of control
         self.event(
             "phase",
             f"--law auto: the torque-level law: this autopilot's attitude loop ({inner.attitude_bandwidth:g} 1/s) "

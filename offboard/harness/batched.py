@@ -252,8 +252,8 @@ def simulate(
     figures (``figures``: :class:`Figures`). ``estimator``: ``truth`` or ``kf`` (the measured-input filter on
     ``sensors``, one ``sim_bridge.plant.sensors.Preset`` per run, generator seeds ``seeds``); ``actuators``: ``ideal``
     or ``mixer`` (four motors with each vehicle's lag); ``tuning``: the filter's (``MeasuredTuning``; None: the
-    defaults); ``law``: ``smc`` (the sliding-mode law of ``params``) or one of the cascade's rows of
-    ``BATCHED_LAWS`` (with their default gains, on ``params.vehicle``, the nominal vehicle)."""
+    defaults); ``law``: ``smc`` (the sliding-mode law of ``params``) or another row of ``BATCHED_LAWS``
+    (the registry's controller of that name on ``params.vehicle``, the nominal vehicle: :func:`batched_law`)."""
     from estimators.filters.batched_kf import GYRO, IMU, BatchedMeasuredKalman
     from offboard.harness.batched_controllers import smc_step
     from offboard.harness.batched_sensors import RING, BatchMixer, Records, measure, schedule

@@ -339,7 +339,7 @@ class LqrStep(BatchedBaseline):
 
     def __init__(self, law: LqrController, runs: int) -> None:
         super().__init__(law.vehicle, runs)
-        self.k = law._k
+        self.k = law.K.tolist()  # python floats: the scalar law's products, to the bit
         self.kf = law.kf
         self.thrust_max, self.torque_max = law.thrust_max, law.torque_max
         self.ints = [np.zeros(runs) for _ in range(4)]

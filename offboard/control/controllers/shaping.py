@@ -171,10 +171,6 @@ class ShapedCascade:
         self.cascade.reset()
         self.shaper.reset()
 
-    def shaped(self, t: float) -> tuple[tuple[float, ...], ...]:
-        """The shaped (fx, fy, z, psi) at ``t`` from the samples given so far."""
-        return self.shaper.shaped(t)
-
     def step(self, t: float, est: ControlState, ref_fx: Ref, ref_fy: Ref, ref_z: Ref, ref_psi: Ref) -> Command:
         fx, fy, z, psi = self.shaper(t, ref_fx, ref_fy, ref_z, ref_psi)
         return self.cascade.step(t, est, fx, fy, z, psi)
