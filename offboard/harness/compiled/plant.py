@@ -1,0 +1,363 @@
+"""The vehicle's side of a compiled run: the plant (``sim_bridge.plant.dynamics``), its still-air drag, the cable
+tension, the sensors' values (``sim_bridge.plant.sensors``), the sweep's gust and the four-motor mixer
+(``sim_bridge.inner.airframe.Mixer``), each for one run, with the scalar path's expressions in its order.
+
+State ``x`` (18,) and input ``u`` (13,) are the plant's vectors (``sim_bridge.plant.dynamics``: world NWU, SI, Euler
+angles ZYX in rad, the cable's unit direction ``r`` from vehicle to load and its rate). The true vehicle's constants
+are a float array indexed by the ``P_*`` constants (:func:`plant_constants`), the mixer's by ``MIX_*``
+(:func:`mixer_constants`), the gust's by ``GUST_*`` (:func:`gust_constants`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from offboard.harness.compiled.layout import (
+    ATT,
+    EST_ALPHA_X,
+    EST_ALPHA_X_RATE,
+    EST_ALPHA_Y,
+    EST_ALPHA_Y_RATE,
+    EST_FX,
+    EST_FY,
+    EST_PHI,
+    EST_PHI_RATE,
+    EST_PSI,
+    EST_PSI_RATE,
+    EST_THETA,
+    EST_THETA_RATE,
+    EST_Z,
+    EST_Z_RATE,
+    LOAD,
+    POS,
+    inline_kernel,
+    pure_kernel,
+)
+
+# ---- the true vehicle ---------------------------------------------------------------------------------------------
+P_M, P_m, P_L, P_G, P_IP, P_IT, P_IS, P_KDV, P_KDW = range(9)
+PLANT_SIZE = 9
+
+
+def plant_constants(vehicle: Any) -> np.ndarray:
+    """A run's TRUE vehicle as the plant's constants: masses (kg), cable length (m), gravity (m/s^2), the paper
+    model's inertia (kg m^2), still-air drag (N per m/s, N m per rad/s)."""
+    ip, it, i_s = vehicle.inertia
+    return np.array(
+        [
+            vehicle.mass_vehicle,
+            vehicle.mass_load,
+            vehicle.cable_length,
+            vehicle.gravity,
+            ip,
+            it,
+            i_s,
+            vehicle.linear_drag,
+            vehicle.angular_drag,
+        ]
+    )
+
+
+@pure_kernel
+def derivative(x: np.ndarray, u: np.ndarray, p: np.ndarray, out: np.ndarray) -> None:
+    """``sim_bridge.plant.dynamics.derivative`` (paper attitude model, a load of mass > 0) into ``out`` (18,)."""
+    phi, theta, psi = x[6], x[7], x[8]
+    r1, r2, r3 = x[12], x[13], x[14]
+    d1, d2, d3 = x[15], x[16], x[17]
+    M, m, l = p[P_M], p[P_m], p[P_L]
+    thrust = u[0]
+    sf, cf = math.sin(phi), math.cos(phi)
+    st, ct = math.sin(theta), math.cos(theta)
+    sp, cp = math.sin(psi), math.cos(psi)
+    n1, n2, n3 = sf * sp + cf * cp * st, cf * sp * st - cp * sf, cf * ct
+    q1 = thrust * n1 + u[4]
+    q2 = thrust * n2 + u[5]
+    q3 = thrust * n3 + u[6]
+    rd2 = d1 * d1 + d2 * d2 + d3 * d3
+    rq = r1 * q1 + r2 * q2 + r3 * q3
+    rl = r1 * u[7] + r2 * u[8] + r3 * u[9]
+    T = (m * M * l * rd2 + M * rl - m * rq) / (M + m)
+    out[0], out[1], out[2] = x[3], x[4], x[5]
+    out[3] = (q1 + T * r1) / M
+    out[4] = (q2 + T * r2) / M
+    out[5] = (q3 + T * r3) / M - p[P_G]
+    w1 = u[7] / m - q1 / M
+    w2 = u[8] / m - q2 / M
+    w3 = u[9] / m - q3 / M
+    wr = w1 * r1 + w2 * r2 + w3 * r3
+    inv_l = 1.0 / l
+    out[6], out[7], out[8] = x[9], x[10], x[11]
+    out[9] = (u[1] + u[10]) / p[P_IP]
+    out[10] = (u[2] + u[11]) / p[P_IT]
+    out[11] = (u[3] + u[12]) / p[P_IS]
+    out[12], out[13], out[14] = x[15], x[16], x[17]
+    out[15] = (w1 - wr * r1) * inv_l - rd2 * r1
+    out[16] = (w2 - wr * r2) * inv_l - rd2 * r2
+    out[17] = (w3 - wr * r3) * inv_l - rd2 * r3
+
+
+@pure_kernel
+def rk4_step(x: np.ndarray, u: np.ndarray, p: np.ndarray, h: float, work: np.ndarray) -> None:
+    """``sim_bridge.plant.dynamics.rk4_step`` in place on ``x`` (input held over ``h`` s, the cable projected back
+    onto ``|r| = 1``, ``r . r' = 0``); ``work`` (5, 18) is scratch."""
+    k1, k2, k3, k4, y = work[0], work[1], work[2], work[3], work[4]
+    derivative(x, u, p, k1)
+    hh = 0.5 * h
+    for i in range(18):
+        y[i] = x[i] + hh * k1[i]
+    derivative(y, u, p, k2)
+    for i in range(18):
+        y[i] = x[i] + hh * k2[i]
+    derivative(y, u, p, k3)
+    for i in range(18):
+        y[i] = x[i] + h * k3[i]
+    derivative(y, u, p, k4)
+    h6 = h / 6.0
+    for i in range(18):
+        x[i] = x[i] + h6 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+    r1, r2, r3 = x[12], x[13], x[14]
+    inv = 1.0 / math.sqrt(r1 * r1 + r2 * r2 + r3 * r3)
+    r1, r2, r3 = r1 * inv, r2 * inv, r3 * inv
+    x[12], x[13], x[14] = r1, r2, r3
+    dot = r1 * x[15] + r2 * x[16] + r3 * x[17]
+    x[15] -= dot * r1
+    x[16] -= dot * r2
+    x[17] -= dot * r3
+
+
+@pure_kernel
+def tension(x: np.ndarray, u: np.ndarray, p: np.ndarray) -> float:
+    """``sim_bridge.plant.dynamics.tension``: the cable's tension, N (<= 0: slack)."""
+    sf, cf = math.sin(x[6]), math.cos(x[6])
+    st, ct = math.sin(x[7]), math.cos(x[7])
+    sp, cp = math.sin(x[8]), math.cos(x[8])
+    n1, n2, n3 = sf * sp + cf * cp * st, cf * sp * st - cp * sf, cf * ct
+    r1, r2, r3 = x[12], x[13], x[14]
+    d1, d2, d3 = x[15], x[16], x[17]
+    thrust = u[0]
+    rq = r1 * (thrust * n1 + u[4]) + r2 * (thrust * n2 + u[5]) + r3 * (thrust * n3 + u[6])
+    rl = r1 * u[7] + r2 * u[8] + r3 * u[9]
+    M, m, l = p[P_M], p[P_m], p[P_L]
+    return (m * M * l * (d1 * d1 + d2 * d2 + d3 * d3) + M * rl - m * rq) / (M + m)
+
+
+@inline_kernel
+def body_rates(phi: float, theta: float, phi_rate: float, theta_rate: float, psi_rate: float) -> tuple:
+    """``estimators.model.rotations.body_rates``: (p, q, r) rad/s body FLU from the Euler angles and rates."""
+    sf, cf = math.sin(phi), math.cos(phi)
+    st, ct = math.sin(theta), math.cos(theta)
+    return phi_rate - st * psi_rate, cf * theta_rate + sf * ct * psi_rate, -sf * theta_rate + cf * ct * psi_rate
+
+
+@pure_kernel
+def apply_drag(u: np.ndarray, x: np.ndarray, force: np.ndarray, torque: np.ndarray, p: np.ndarray) -> None:
+    """``sim_bridge.plant.dynamics.apply_drag``: ``u``'s external force on the vehicle (slots 4-6) and torque (10-12)
+    become the disturbance's (``force`` N world, ``torque`` N m body) plus still-air drag at ``x``; a zero
+    coefficient leaves its slots alone."""
+    kdv, kdw = p[P_KDV], p[P_KDW]
+    if kdv > 0.0:
+        u[4], u[5], u[6] = force[0] - kdv * x[3], force[1] - kdv * x[4], force[2] - kdv * x[5]
+    if kdw > 0.0:
+        wx, wy, wz = body_rates(x[6], x[7], x[9], x[10], x[11])
+        u[10], u[11], u[12] = torque[0] - kdw * wx, torque[1] - kdw * wy, torque[2] - kdw * wz
+
+
+# ---- sensors --------------------------------------------------------------------------------------------------------
+@inline_kernel
+def wrap_angle(a: float) -> float:
+    """``estimators.model.frames.wrap_angle``: ``a`` (rad) into [-pi, pi)."""
+    two_pi = 2.0 * math.pi
+    w = np.fmod(a + math.pi, two_pi)  # fmod is exact: the same as math.fmod, which numba lacks
+    if w <= 0.0:
+        w += two_pi
+    return w - math.pi
+
+
+@pure_kernel
+def measure(
+    kind: int, x: np.ndarray, deriv: np.ndarray, g: float, bias: np.ndarray, e: np.ndarray, out: np.ndarray
+) -> None:
+    """``SensorSuite._measure``'s values of a record of ``kind`` (``offboard.harness.batched_sensors.measure``) into
+    ``out``: the state ``x``, the plant derivative ``deriv`` at it (the accelerometer only), gravity ``g``, the
+    accelerometer's bias (3,) and the record's noise ``e``. Fields as ``estimators.model.measurements`` after the
+    time (position / velocity world NWU; attitude ZYX, body rates FLU; specific force body FLU; load angles)."""
+    if kind == POS:
+        for i in range(6):
+            out[i] = x[i] + e[i]
+        return
+    if kind == LOAD:
+        r1, r2, r3 = x[12], x[13], x[14]
+        out[0] = math.atan2(r2, -r3) + e[0]
+        out[1] = math.atan2(r1, -r3) + e[1]
+        return
+    phi, theta = x[6], x[7]
+    sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
+    p = x[9] - st * x[11]
+    q = cf * x[10] + sf * ct * x[11]
+    r = -sf * x[10] + cf * ct * x[11]
+    if kind == ATT:
+        out[0], out[1], out[2] = x[6] + e[0], x[7] + e[1], wrap_angle(x[8] + e[2])
+        out[3], out[4], out[5] = p + e[3], q + e[4], r + e[5]
+        return
+    fx, fy, fz = deriv[3], deriv[4], deriv[5] + g  # sim_bridge.plant.sensors.specific_force_body
+    sp, cp = math.sin(x[8]), math.cos(x[8])
+    bx = cp * ct * fx + sp * ct * fy - st * fz
+    by = (cp * st * sf - sp * cf) * fx + (sp * st * sf + cp * cf) * fy + ct * sf * fz
+    bz = (cp * st * cf + sp * sf) * fx + (sp * st * cf - cp * sf) * fy + ct * cf * fz
+    out[0], out[1], out[2] = bx + bias[0] + e[0], by + bias[1] + e[1], bz + bias[2] + e[2]
+    out[3], out[4], out[5] = p + e[3], q + e[4], r + e[5]
+
+
+# ---- the sweep's gust ---------------------------------------------------------------------------------------------
+GUST_START, GUST_LENGTH, GUST_FORCE, GUST_COS, GUST_SIN = range(5)
+GUST_SIZE = 5
+
+
+def gust_constants(gust: Any) -> np.ndarray:
+    """The sweep's 1 - cos gust (``offboard.harness.sweep._Gust``; None: no gust) as constants: start (s), length
+    (s), peak force (N), the cosine and sine of its horizontal direction."""
+    if gust is None:
+        return np.array([0.0, 1.0, 0.0, 1.0, 0.0])
+    return np.array([gust.start, gust.length, gust.force, math.cos(gust.direction), math.sin(gust.direction)])
+
+
+@pure_kernel
+def gust_at(c: np.ndarray, t: float, out: np.ndarray) -> None:
+    """The gust's disturbance at ``t`` (s) into ``out`` (9,): force on the vehicle (N, world), 30 % of it on the load,
+    no torque (``offboard.harness.sweep._Gust``)."""
+    for i in range(9):
+        out[i] = 0.0
+    s = (t - c[GUST_START]) / c[GUST_LENGTH]
+    force = c[GUST_FORCE]
+    if not (s >= 0.0 and s <= 1.0) or force == 0.0:
+        return
+    w = 0.5 * (1.0 - math.cos(2.0 * math.pi * s)) * force
+    out[0], out[1] = w * c[GUST_COS], w * c[GUST_SIN]
+    out[3], out[4] = 0.3 * w * c[GUST_COS], 0.3 * w * c[GUST_SIN]
+
+
+# ---- the mixer (sim_bridge.inner.airframe.Mixer, as offboard.harness.batched_sensors.BatchMixer) -------------------
+MIX_A, MIX_C, MIX_FMAX, MIX_ALPHA = range(4)
+MIX_SIZE = 4
+
+
+def mixer_constants(vehicle: Any, dt: float) -> np.ndarray:
+    """The true vehicle's X mixer: the perpendicular arm (m), the yaw moment coefficient (m), one motor's thrust
+    limit (N) and the first-order motor lag's factor per plant step of ``dt`` s."""
+    tau = vehicle.motor_time_constant
+    alpha = 1.0 if tau <= 0.0 else 1.0 - math.exp(-dt / tau)
+    a = vehicle.arm_length / math.sqrt(2.0)
+    return np.array([a, vehicle.yaw_moment_coefficient, vehicle.motor_thrust_max, alpha])
+
+
+@pure_kernel
+def mixer_allocate(c: np.ndarray, thrust: float, tx: float, ty: float, tz: float, cmd: np.ndarray) -> None:
+    """The four motors' commanded thrusts (N) into ``cmd`` for the wrench (thrust N, torques N m body FLU): roll /
+    pitch first, the collective shifted to fit, yaw with what is left (``BatchMixer.allocate``)."""
+    fmax, a = c[MIX_FMAX], c[MIX_A]
+    base = 0.25 * (thrust if thrust < 4.0 * fmax else 4.0 * fmax)
+    if base < 0.0:
+        base = 0.0
+    kx = tx / (4.0 * a)
+    ky = ty / (4.0 * a)
+    kz = tz / (4.0 * c[MIX_C])
+    r0, r1, r2, r3 = kx - ky, -kx - ky, -kx + ky, kx + ky
+    lo = nmin(nmin(r0, r1), nmin(r2, r3))
+    hi = nmax(nmax(r0, r1), nmax(r2, r3))
+    span = hi - lo
+    if span > fmax:
+        s = fmax / span
+        r0, r1, r2, r3 = r0 * s, r1 * s, r2 * s, r3 * s
+        lo, hi = lo * s, hi * s
+    if base + hi > fmax:
+        base = fmax - hi
+    if base + lo < 0.0:
+        s = base / -lo
+        r0, r1, r2, r3 = r0 * s, r1 * s, r2 * s, r3 * s
+    f0, f1, f2, f3 = base + r0, base + r1, base + r2, base + r3
+    if kz > 0.0:
+        k = nmin(nmin(1.0, (fmax - f0) / kz), nmin((fmax - f2) / kz, f1 / kz))
+        k = nmin(k, f3 / kz)
+    elif kz < 0.0:
+        kn = -kz
+        k = nmin(nmin(1.0, f0 / kn), nmin(f2 / kn, (fmax - f1) / kn))
+        k = nmin(k, (fmax - f3) / kn)
+    else:
+        k = 1.0
+    if k < 0.0:
+        k = 0.0
+    y = k * kz
+    cmd[0], cmd[1], cmd[2], cmd[3] = f0 + y, f1 - y, f2 + y, f3 - y
+    for i in range(4):
+        v = cmd[i]
+        cmd[i] = 0.0 if v < 0.0 else (fmax if v > fmax else v)
+
+
+@pure_kernel
+def mixer_wrench(c: np.ndarray, f: np.ndarray, u: np.ndarray) -> None:
+    """The wrench of the motors' thrusts ``f`` (4,) into ``u[0:4]``: thrust N, torques N m body FLU."""
+    f0, f1, f2, f3 = f[0], f[1], f[2], f[3]
+    a = c[MIX_A]
+    u[0] = f0 + f1 + f2 + f3
+    u[1] = a * (f0 - f1 - f2 + f3)
+    u[2] = a * (-f0 - f1 + f2 + f3)
+    u[3] = c[MIX_C] * (f0 - f1 + f2 - f3)
+
+
+@pure_kernel
+def mixer_step(c: np.ndarray, f: np.ndarray, cmd: np.ndarray, u: np.ndarray) -> None:
+    """One plant step of the motors' lag toward ``cmd``, then their wrench into ``u[0:4]``."""
+    alpha = c[MIX_ALPHA]
+    for i in range(4):
+        f[i] = f[i] + (cmd[i] - f[i]) * alpha
+    mixer_wrench(c, f, u)
+
+
+@inline_kernel
+def nmin(a: float, b: float) -> float:
+    """``np.minimum`` of two floats (NaN propagates)."""
+    if a != a or b != b:
+        return a + b
+    return a if a <= b else b
+
+
+@inline_kernel
+def nmax(a: float, b: float) -> float:
+    """``np.maximum`` of two floats (NaN propagates)."""
+    if a != a or b != b:
+        return a + b
+    return a if a >= b else b
+
+
+# ---- the true state as the controller's input ------------------------------------------------------------------------
+@pure_kernel
+def truth_state(x: np.ndarray, l: float, g: float, c: float, out: np.ndarray) -> None:
+    """``estimators.model.flatness.truth_control_state`` (as ``offboard.harness.batched.truth_state``) into the
+    estimate vector ``out`` (``layout.EST_*``), with the controller's nominal flat constants ``l`` (m), ``g``
+    (m/s^2), ``c``."""
+    r1, r2, r3, d1, d2, d3 = x[12], x[13], x[14], x[15], x[16], x[17]
+    qy = r1 * r1 + r3 * r3
+    qx = r2 * r2 + r3 * r3
+    ay, ax = math.atan2(r1, -r3), math.atan2(r2, -r3)
+    ayd = (r1 * d3 - r3 * d1) / qy if qy > 0.0 else 0.0
+    axd = (r2 * d3 - r3 * d2) / qx if qx > 0.0 else 0.0
+    phi, theta, psi, dphi, dtheta, dpsi = x[6], x[7], x[8], x[9], x[10], x[11]
+    cp, sp = math.cos(psi), math.sin(psi)
+    nx = theta * cp + phi * sp
+    ny = theta * sp - phi * cp
+    nxd = dtheta * cp + dphi * sp - dpsi * ny
+    nyd = dtheta * sp - dphi * cp + dpsi * nx
+    out[EST_FX + 0], out[EST_FX + 1] = x[0] + l * ay, x[3] + l * ayd
+    out[EST_FX + 2], out[EST_FX + 3] = -g * ay, -g * ayd
+    out[EST_FX + 4], out[EST_FX + 5] = c * (ay + nx), c * (ayd + nxd)
+    out[EST_FY + 0], out[EST_FY + 1] = x[1] + l * ax, x[4] + l * axd
+    out[EST_FY + 2], out[EST_FY + 3] = -g * ax, -g * axd
+    out[EST_FY + 4], out[EST_FY + 5] = c * (ax + ny), c * (axd + nyd)
+    out[EST_Z], out[EST_Z_RATE] = x[2], x[5]
+    out[EST_PHI], out[EST_THETA], out[EST_PSI] = phi, theta, psi
+    out[EST_PHI_RATE], out[EST_THETA_RATE], out[EST_PSI_RATE] = dphi, dtheta, dpsi
+    out[EST_ALPHA_X], out[EST_ALPHA_Y] = ax, ay
+    out[EST_ALPHA_X_RATE], out[EST_ALPHA_Y_RATE] = axd, ayd

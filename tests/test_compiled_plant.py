@@ -1,0 +1,156 @@
+"""The compiled engine's plant, sensors, gust and mixer (``offboard.harness.compiled.plant``) against the numpy batched
+path's (``offboard.harness.batched``, ``offboard.harness.batched_sensors``) and the scalar plant
+(``sim_bridge.plant.dynamics``): the same values on random states, inputs and vehicles."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from estimators.model.vehicle import load_vehicle
+from offboard.harness import batched, sweep
+from offboard.harness import batched_sensors as bs
+from offboard.harness.compiled import plant as cp
+from sim_bridge.plant import dynamics
+
+V = load_vehicle(None)
+RNG = np.random.default_rng(7)
+
+
+def _vehicles(n: int) -> list:
+    out = []
+    for _ in range(n):
+        k = RNG.uniform(0.7, 1.3, 5)
+        out.append(
+            V.with_changes(
+                mass_vehicle=V.mass_vehicle * k[0],
+                mass_load=V.mass_load * k[1],
+                cable_length=V.cable_length * k[2],
+                inertia=tuple(i * k[3] for i in V.inertia),
+                motor_time_constant=0.01 + 0.03 * RNG.random(),
+                linear_drag=float(RNG.choice([0.0, 0.8])),
+                angular_drag=float(RNG.choice([0.0, 0.02])),
+            )
+        )
+    return out
+
+
+def _state() -> np.ndarray:
+    x = RNG.normal(0.0, 0.4, 18)
+    x[12:15] = RNG.normal(0.0, 0.3, 3) + np.array([0.0, 0.0, -1.0])
+    dynamics.project_cable(x)  # type: ignore[arg-type]
+    return x
+
+
+def _input() -> np.ndarray:
+    return np.concatenate([[RNG.uniform(3.0, 12.0)], RNG.normal(0.0, 0.3, 12)])
+
+
+def test_derivative_rk4_and_tension_equal_the_scalar_plant() -> None:
+    """Random states, inputs and true vehicles: the derivative, an RK4 step with the cable's projection and the
+    tension equal ``sim_bridge.plant.dynamics`` (the scalar path) to the last bits or 1e-15 relative."""
+    work = np.empty((5, 18))
+    out = np.empty(18)
+    for v in _vehicles(20):
+        p = cp.plant_constants(v)
+        pp = dynamics.plant_params(v, "paper")
+        x, u = _state(), _input()
+        cp.derivative(x, u, p, out)
+        np.testing.assert_allclose(out, dynamics.derivative(0.0, list(x), list(u), pp), rtol=1e-15, atol=1e-15)
+        y = x.copy()
+        cp.rk4_step(y, u, p, 1e-3, work)
+        np.testing.assert_allclose(y, dynamics.rk4_step(list(x), list(u), pp, 1e-3), rtol=1e-15, atol=1e-15)
+        assert not np.allclose(y, x)  # it moved
+        assert cp.tension(x, u, p) == pytest.approx(dynamics.tension(list(x), list(u), pp), rel=1e-15, abs=1e-15)
+
+
+def test_drag_equals_the_scalar_drag_and_leaves_slots_without_it() -> None:
+    for v in _vehicles(12):
+        p = cp.plant_constants(v)
+        x, u = _state(), _input()
+        force, torque = RNG.normal(0.0, 0.5, 3), RNG.normal(0.0, 0.1, 3)
+        mine, scalar = u.copy(), list(u)
+        cp.apply_drag(mine, x, force, torque, p)
+        dynamics.apply_drag(scalar, list(x), list(force), list(torque), v.linear_drag, v.angular_drag)
+        np.testing.assert_allclose(mine, scalar, rtol=1e-15, atol=1e-15)
+        if v.linear_drag == 0.0:
+            np.testing.assert_array_equal(mine[4:7], u[4:7])
+
+
+@pytest.mark.parametrize("kind", [bs.POS, bs.ATT, bs.IMU, bs.LOAD])
+def test_sensor_values_equal_the_batched_path(kind: int) -> None:
+    """A record's values from the state, the plant's derivative, gravity, the accelerometer's bias and the noise:
+    ``batched_sensors.measure`` (which equals the scalar suite) to 1e-14."""
+    vs = _vehicles(8)
+    x = np.stack([_state() for _ in vs], axis=1)
+    u = np.stack([_input() for _ in vs], axis=1)
+    bp = batched.BatchPlant(vs)
+    deriv = batched.derivative(x, u, bp)
+    bias = RNG.normal(0.0, 0.05, (3, len(vs)))
+    e = RNG.normal(0.0, 0.01, (bs.FIELDS[kind], len(vs)))
+    want = bs.measure(kind, x, u, deriv, bp.g, bias, e)
+    out = np.empty(6)
+    for b in range(len(vs)):
+        cp.measure(kind, x[:, b], deriv[:, b], bp.g[b], bias[:, b], e[:, b], out)
+        np.testing.assert_allclose(out[: bs.FIELDS[kind]], want[:, b], rtol=1e-14, atol=1e-14)
+
+
+def test_gust_equals_the_sweeps_gust() -> None:
+    """The 1 - cos gust against ``offboard.harness.sweep._Gust`` (the scalar path's) over its whole span."""
+    g = sweep._Gust(start=1.3, force=0.7, direction=2.1)
+    c = cp.gust_constants(g)
+    out = np.empty(9)
+    felt = 0
+    for t in np.arange(0.0, 3.0, 0.01):
+        cp.gust_at(c, float(t), out)
+        np.testing.assert_allclose(out, g(float(t)), rtol=1e-15, atol=1e-15)
+        felt += bool(out.any())
+    assert felt > 90  # the gust acted for its second
+    cp.gust_at(cp.gust_constants(None), 1.5, out)
+    assert not out.any()
+
+
+def test_mixer_equals_the_batched_mixer_through_saturation() -> None:
+    """Allocation and the motors' lag over 300 plant steps of random wrenches, some far beyond the motors' limits
+    (roll / pitch first, the collective shifted, yaw with what is left): ``BatchMixer`` to 1e-14."""
+    vs = _vehicles(6)
+    mix = bs.BatchMixer(vs, 1e-3)
+    hover = np.array([(v.mass_vehicle + v.mass_load) * v.gravity for v in vs])
+    mix.reset(0.25 * hover)
+    consts = [cp.mixer_constants(v, 1e-3) for v in vs]
+    f = [np.full(4, 0.25 * h) for h in hover]
+    cmd = [fi.copy() for fi in f]
+    u = np.zeros(13)
+    clipped = 0
+    for _ in range(300):
+        w = np.stack(
+            [RNG.uniform(-2.0, 20.0, len(vs)), *RNG.normal(0.0, 1.5, (2, len(vs))), RNG.normal(0, 0.2, len(vs))]
+        )
+        mix.allocate(w[0], w[1], w[2], w[3])
+        want = mix.step()
+        for b, c in enumerate(consts):
+            cp.mixer_allocate(c, w[0, b], w[1, b], w[2, b], w[3, b], cmd[b])
+            np.testing.assert_allclose(cmd[b], mix.cmd[:, b], rtol=1e-14, atol=1e-14)
+            clipped += bool(np.any(cmd[b] == c[cp.MIX_FMAX]) or np.any(cmd[b] == 0.0))
+            cp.mixer_step(c, f[b], cmd[b], u)
+            np.testing.assert_allclose(u[:4], want[:, b], rtol=1e-14, atol=1e-14)
+    assert clipped > 100  # the limits were met
+
+
+def test_truth_state_equals_the_batched_truth_state() -> None:
+    from estimators.model.flatness import flat_constants
+    from offboard.harness.compiled import layout as lay
+
+    k = flat_constants(V)
+    xs = np.stack([_state() for _ in range(10)], axis=1)
+    want = batched.truth_state(xs, k)
+    out = np.empty(lay.EST_SIZE)
+    for b in range(xs.shape[1]):
+        cp.truth_state(xs[:, b], k.l, k.g, k.c, out)
+        np.testing.assert_allclose(out[lay.EST_FX : lay.EST_FX + 6], want["fx"][:, b], rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(out[lay.EST_FY : lay.EST_FY + 6], want["fy"][:, b], rtol=1e-14, atol=1e-14)
+        for name, i in (("z", lay.EST_Z), ("psi_rate", lay.EST_PSI_RATE), ("alpha_x_rate", lay.EST_ALPHA_X_RATE)):
+            assert out[i] == pytest.approx(want[name][b], rel=1e-14, abs=1e-14)
+    assert math.isfinite(out.sum())
