@@ -244,6 +244,7 @@ def simulate(
     plant_dt: float = 0.001,
     tuning: Any = None,
     law: str = "smc",
+    kf_factory: Any = None,
 ) -> dict[str, Any]:
     """Run the scenarios (one reference for all: the first's; each its own gust and initial state) with their
     true vehicles together, as ``offboard.harness.sim.run`` runs each: returns arrays (ticks, B) of ``t`` (ticks,),
@@ -253,7 +254,9 @@ def simulate(
     ``sensors``, one ``sim_bridge.plant.sensors.Preset`` per run, generator seeds ``seeds``); ``actuators``: ``ideal``
     or ``mixer`` (four motors with each vehicle's lag); ``tuning``: the filter's (``MeasuredTuning``; None: the
     defaults); ``law``: ``smc`` (the sliding-mode law of ``params``) or another row of ``BATCHED_LAWS``
-    (the registry's controller of that name on ``params.vehicle``, the nominal vehicle: :func:`batched_law`)."""
+    (the registry's controller of that name on ``params.vehicle``, the nominal vehicle: :func:`batched_law`);
+    ``kf_factory``: what builds the filter, called as ``BatchedMeasuredKalman`` is (None: that class; a test passes
+    a subclass that records the filter's calls, ``tests/test_compiled_kf.py``)."""
     from estimators.filters.batched_kf import GYRO, IMU, BatchedMeasuredKalman
     from offboard.harness.batched_controllers import smc_step
     from offboard.harness.batched_sensors import RING, BatchMixer, Records, measure, schedule
@@ -290,7 +293,7 @@ def simulate(
     if estimator == "kf":
         assert sensors is not None and seeds is not None
         kw_kf: dict[str, Any] = {} if tuning is None else {"tuning": tuning}
-        kf = BatchedMeasuredKalman(params.vehicle, B, load_sensor=load_sensor, rate_hz=1.0 / dt, **kw_kf)
+        kf = (kf_factory or BatchedMeasuredKalman)(params.vehicle, B, load_sensor=load_sensor, rate_hz=1 / dt, **kw_kf)
         runs = [
             schedule(
                 sensors[b],
