@@ -1,0 +1,275 @@
+"""The compiled controllers (``offboard.harness.compiled.laws``) against the numpy batched ones
+(``offboard.harness.batched_controllers``, themselves equal to the scalar laws): fed the same estimates and
+references tick after tick, each run's command, saturation flag and memory agree to 1e-12 (absolute: commands of
+a few N and N m, memories of the same size or smaller), NaN where the batched law gives NaN.
+
+The estimates are the true states of a flown rest-to-rest move (three vehicles, sampled every 10 ms) plus noise,
+with one run pushed far off its reference for a while (the speed, tilt, torque and thrust limits clip) and another
+whose attitude estimate is NaN for a few ticks.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+from typing import Any
+
+import numba
+import numpy as np
+import pytest
+
+from estimators.model.control_state import ControlState
+from estimators.model.flatness import flat_constants
+from estimators.model.vehicle import Vehicle
+from offboard.control import smc
+from offboard.control.controllers import registry
+from offboard.control.scenarios import make_scenario
+from offboard.harness import batched
+from offboard.harness.batched_controllers import LqrStep, SwingFeedbackStep, smc_step
+from offboard.harness.compiled import laws
+from offboard.harness.compiled.layout import (
+    EST_ALPHA_Y,
+    EST_FX,
+    EST_FY,
+    EST_PSI,
+    EST_SIZE,
+    EST_THETA,
+    EST_Z,
+    REF_SIZE,
+)
+
+V = Vehicle()
+#: the controller's period (s): the flown move's states every 10 plant steps of 1 ms
+DT = 0.01
+RUNS = 3
+#: run 1's attitude estimate is NaN on these ticks
+NAN_TICKS = range(150, 154)
+ATOL = 1e-12
+
+#: the noise added to the true state, per field of the estimate (SI): the flat chains' orders 0..5, then z, z',
+#: the attitude, its rates, the swing angles and their rates
+NOISE = np.array(
+    [0.01, 0.02, 0.05, 0.2, 1.0, 5.0] * 2 + [0.01, 0.02] + [0.005] * 3 + [0.02] * 3 + [0.005] * 2 + [0.03] * 2
+)
+
+#: the rows tested: (row of BATCHED_LAWS, the smc law's parameters or the baseline's nominal vehicle)
+CASES: dict[str, tuple[str, Any]] = {
+    "smc-sign": ("smc", smc.ControllerParams.for_vehicle(V, switching="sign")),
+    "smc-smooth": ("smc", smc.ControllerParams.for_vehicle(V, switching="smooth")),
+    "smc-row-sign": ("smc", registry.smc_params(V, "sign")),  # actuation lag, shared roll / pitch margin
+    "smc-row-smooth": ("smc", registry.smc_params(V, "smooth")),
+    "cascade": ("cascade", V),
+    "zvd": ("zvd", V),
+    "swing-feedback": ("swing-feedback", V),
+    "lqr": ("lqr", V),  # the motors' lag designed in: 24 states
+    "lqr-no-lag": ("lqr", replace(V, motor_time_constant=0.0)),  # 20 states
+}
+
+
+def _offsets(tick: int) -> tuple[float, float]:
+    """Run 2's push off the reference at ``tick``: (the offset of F_x, m, F_y's a third of it; the heading's, rad)."""
+    ramp = min(1.0, max(0.0, (tick - 100) / 60.0)) if tick < 220 else 0.0  # up to 15 m: past the speed limit
+    heading = 0.8 if 240 <= tick < 280 else 0.0
+    return 15.0 * ramp, heading
+
+
+@pytest.fixture(scope="module")
+def flight() -> tuple[np.ndarray, list[Any]]:
+    """(the estimates (ticks, RUNS, EST_SIZE), the reference samples) of a rest-to-rest move (3 m in 2.5 s, swings
+    up to 0.7 rad) flown by the smc row on three vehicles (the nominal one, a heavier load, a longer cable), the
+    true states plus noise, run 2 pushed off (:func:`_offsets`), run 1's attitude NaN on ``NAN_TICKS``."""
+    scenario = make_scenario("rest-to-rest", duration=3.0)
+    vehicles = [V, replace(V, mass_load=1.3 * V.mass_load), replace(V, cable_length=1.4 * V.cable_length)]
+    log = batched.simulate([scenario] * RUNS, vehicles, registry.smc_params(V), log_every=round(DT / 0.001))
+    k = flat_constants(V)
+    rng = np.random.default_rng(11)
+    ests = np.empty((log["x"].shape[0], RUNS, EST_SIZE))  # a run's estimate contiguous, as the driver has it
+    for tick, x in enumerate(log["x"]):
+        truth = batched.truth_state(x, k)
+        ests[tick, :, EST_FX : EST_FX + 6], ests[tick, :, EST_FY : EST_FY + 6] = truth["fx"].T, truth["fy"].T
+        ests[tick, :, EST_Z:] = np.array([truth[n] for n in ControlState._fields[2:]]).T
+    ests += NOISE * rng.standard_normal(ests.shape)
+    for tick in range(ests.shape[0]):
+        push, heading = _offsets(tick)
+        ests[tick, 2, [EST_FX, EST_FY]] += (push, push / 3.0)
+        ests[tick, 2, EST_PSI] += heading
+    ests[list(NAN_TICKS), 1, EST_THETA] = math.nan
+    reference = scenario.reference
+    return ests, [reference.sample(tick * DT) for tick in range(ests.shape[0])]
+
+
+def _est_dict(est: np.ndarray) -> dict[str, np.ndarray]:
+    """The batched laws' estimate over runs from ``est`` (EST_SIZE, RUNS)."""
+    out = {"fx": est[EST_FX : EST_FX + 6], "fy": est[EST_FY : EST_FY + 6]}
+    out.update({n: est[EST_Z + i] for i, n in enumerate(ControlState._fields[2:])})
+    return out
+
+
+def _ref_row(fx: tuple, fy: tuple, z: tuple, psi: tuple) -> np.ndarray:
+    """The reference row (``layout.REF_*``) of a (shaped) sample's four 7-tuples."""
+    row = np.concatenate([fx, fy, z, psi]).astype(float)
+    assert row.shape == (REF_SIZE,)
+    return row
+
+
+def _batched_memory(law: Any, b: int) -> np.ndarray:
+    """A batched baseline's memory of run ``b`` in the compiled layout (``laws.B_*``)."""
+    if isinstance(law, LqrStep):
+        return np.array([law.t_last[b], *(a[b] for a in law.ints + law.delivered + law.sent)])
+    names = ["t_last", "ivx", "ivy", "ivz", "i_p", "i_q"]
+    if isinstance(law, SwingFeedbackStep):
+        names += ["rest_x", "rest_y", "off_x", "off_y", "vel_x", "vel_y"]
+    return np.array([getattr(law, n)[b] for n in names])
+
+
+class _Batched:
+    """The numpy batched law of a case over RUNS runs, one tick at a time (as ``batched.simulate`` calls it)."""
+
+    def __init__(self, row: str, arg: Any) -> None:
+        if row == "smc":
+            self.params, self.mem = arg, np.zeros((8, RUNS))
+            self.law = self.shaper = None
+        else:
+            self.law, self.shaper = batched.batched_law(row, arg, RUNS)
+
+    def refs(self, t: float, sample: Any) -> tuple[tuple, ...]:
+        """The reference the law flies at ``t`` (shaped for zv / zvd)."""
+        refs = (sample.fx, sample.fy, sample.z, sample.psi)
+        return refs if self.shaper is None else self.shaper(t, *refs)
+
+    def step(self, tick: int, est: np.ndarray, refs: tuple[tuple, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """(u (4, RUNS), saturated (RUNS,)) for the estimates ``est`` (EST_SIZE, RUNS) at ``tick``."""
+        if self.law is None:
+            u, sat, self.mem = smc_step(0.0 if tick == 0 else DT, _est_dict(est), *refs, self.mem, self.params)
+            return u, sat
+        return self.law(tick * DT, _est_dict(est), *refs)
+
+    def memory(self, b: int) -> np.ndarray:
+        """Run ``b``'s memory in the compiled layout."""
+        return self.mem[:, b] if self.law is None else _batched_memory(self.law, b)
+
+
+def _fly_both(case: str, flight: tuple[np.ndarray, list[Any]]) -> dict[str, np.ndarray]:
+    """Both paths over the flight, compared tick by tick (commands, saturation, memories); returns the batched
+    commands (ticks, 4, RUNS) and saturation flags (ticks, RUNS)."""
+    row, arg = CASES[case]
+    ests, samples = flight
+    batch = _Batched(row, arg)
+    vehicle, params = (V, arg) if row == "smc" else (arg, registry.smc_params(arg))
+    code, c, K = laws.law_constants(row, vehicle, params)
+    mems = [laws.law_memory(code, c) for _ in range(RUNS)]
+    u_k = np.zeros(4)
+    us, sats = np.empty((len(samples), 4, RUNS)), np.empty((len(samples), RUNS), dtype=bool)
+    for tick, sample in enumerate(samples):
+        refs = batch.refs(tick * DT, sample)
+        us[tick], sats[tick] = batch.step(tick, ests[tick].T, refs)
+        ref = _ref_row(*refs)
+        for b in range(RUNS):
+            sat_k = laws.law_step(code, c, K, mems[b], tick * DT, 0.0 if tick == 0 else DT, ests[tick, b], ref, u_k)
+            where = f"{case}, tick {tick}, run {b}"
+            np.testing.assert_allclose(u_k, us[tick, :, b], rtol=0, atol=ATOL, err_msg=where)
+            assert sat_k == sats[tick, b], where
+            state = batch.memory(b)  # LQR's memory vector ends with its scratch area (laws.LQR_STATE)
+            assert state.size == (laws.LQR_STATE if code == laws.LAW_LQR else mems[b].size)
+            np.testing.assert_allclose(mems[b][: state.size], state, rtol=0, atol=ATOL, err_msg=f"memory, {where}")
+    return {"u": us, "sat": sats}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_the_compiled_law_equals_the_batched_law_tick_by_tick(case: str, flight: Any) -> None:
+    """Each run's command, saturation flag and memory, tick after tick over a 3 s flight, equal the batched law's to
+    1e-12; the clipping paths are taken (some ticks saturate, not all)."""
+    got = _fly_both(case, flight)
+    sat = got["sat"]
+    assert 0 < sat.sum() < sat.size, f"{case}: {sat.sum()} of {sat.size} saturated"
+    assert sat[:, 2].any() and not sat[:100, 0].all()  # the pushed run clips; the others fly within the limits
+    u = got["u"]
+    if CASES[case][0] != "smc":  # the baselines hover through the NaN ticks, then fly on
+        hover = np.array([V.hover_thrust, 0.0, 0.0, 0.0])
+        for tick in NAN_TICKS:
+            np.testing.assert_array_equal(u[tick, :, 1], hover)
+        assert np.isfinite(u[NAN_TICKS[-1] + 1 :, :, 1]).all()
+        assert not np.array_equal(u[NAN_TICKS[-1] + 1, :, 1], hover)
+    else:  # smc does not screen its estimate: the NaN reaches the command, as in the batched law
+        assert np.isnan(u[NAN_TICKS[0], :, 1]).any()
+
+
+def test_the_shared_margin_scales_the_roll_pitch_pair(flight: Any) -> None:
+    """The smc row's shared roll / pitch margin is exercised: on some ticks the pair sits on the margin
+    (``|tau_phi| / tp_max + |tau_theta| / tt_max = 1``)."""
+    u = _fly_both("smc-row-sign", flight)["u"]
+    share = np.abs(u[:, 1]) / V.roll_pitch_torque_max + np.abs(u[:, 2]) / V.roll_pitch_torque_max
+    assert np.isclose(share, 1.0, rtol=0, atol=1e-12).sum() > 5
+
+
+def test_zv_and_zvd_are_the_cascade_and_the_codes_are_distinct() -> None:
+    """The shaped rows fly the cascade's code and gains (the driver shapes their reference); every law has its own
+    code and its memory the layout's size."""
+    params = registry.smc_params(V)
+    code, c, K = laws.law_constants("cascade", V, params)
+    for row in ("zv", "zvd"):
+        code_s, c_s, K_s = laws.law_constants(row, V, params)
+        assert code_s == code == laws.LAW_CASCADE and np.array_equal(c_s, c) and K_s.shape == K.shape == (0, 0)
+    codes = {laws.law_constants(row, V, params)[0] for row in batched.BATCHED_LAWS}
+    assert codes == {laws.LAW_SMC, laws.LAW_CASCADE, laws.LAW_SWING_FEEDBACK, laws.LAW_LQR}
+    assert laws.law_memory(laws.LAW_SWING_FEEDBACK, laws.law_constants("swing-feedback", V, params)[1]).shape == (12,)
+    with pytest.raises(ValueError, match="not a pair"):
+        laws.law_memory(laws.LAW_SWING_FEEDBACK, c)
+
+
+def test_swing_feedback_offsets_stop_beyond_the_applets_distance() -> None:
+    """With the load beyond SLUP_DIST_MAX (a swing of 60 rad on the 0.3 m cable: 18 m) the applet's velocity and
+    acceleration offsets are zero, its position offset held, in both paths."""
+    params = registry.smc_params(V)
+    code, c, K = laws.law_constants("swing-feedback", V, params)
+    batch, _ = batched.batched_law("swing-feedback", V, 1)
+    mem, u = laws.law_memory(code, c), np.zeros(4)
+    sample = make_scenario("rest-to-rest").reference.sample(1.0)
+    ref = _ref_row(sample.fx, sample.fy, sample.z, sample.psi)
+    for tick, swing in enumerate((0.1, 0.1, 60.0, 60.0, 0.1)):
+        est = np.zeros(EST_SIZE)
+        est[EST_Z], est[EST_ALPHA_Y], est[EST_FX + 3] = 2.0, swing, 1.5
+        sat = laws.law_step(code, c, K, mem, tick * DT, DT, est, ref, u)
+        want, want_sat = batch(tick * DT, _est_dict(est[:, None]), sample.fx, sample.fy, sample.z, sample.psi)
+        np.testing.assert_allclose(u, want[:, 0], rtol=0, atol=ATOL)
+        assert sat == want_sat[0]
+        np.testing.assert_allclose(mem, _batched_memory(batch, 0), rtol=0, atol=ATOL)
+        if swing > 1.0:
+            assert mem[laws.B_VEL_X] == mem[laws.B_VEL_Y] == 0.0
+    assert mem[laws.B_VEL_X] != 0.0  # back within the distance: the offsets grow again
+
+
+@numba.njit
+def _tick_loop(
+    code: int, c: np.ndarray, K: np.ndarray, mem: np.ndarray, ests: np.ndarray, ref: np.ndarray, reps: int
+) -> float:
+    """``law_step`` over the estimates ``ests`` (ticks, EST_SIZE) ``reps`` times (the timing's loop)."""
+    u = np.zeros(4)
+    acc = 0.0
+    n = ests.shape[0]
+    for r in range(reps):
+        for i in range(n):
+            laws.law_step(code, c, K, mem, (r * n + i) * 0.01, 0.01, ests[i], ref, u)
+            acc += u[0]
+    return acc
+
+
+def test_law_step_time_per_call(flight: Any) -> None:
+    """The time of one ``law_step`` per law, called from compiled code over the flight's estimates (printed; bound
+    loosely, 20 us, against a fall back to slow code)."""
+    ests, samples = flight
+    run0 = np.ascontiguousarray(ests[:, 0])
+    s = samples[120]
+    ref = _ref_row(s.fx, s.fy, s.z, s.psi)
+    params = registry.smc_params(V)
+    for row in ("smc", "cascade", "swing-feedback", "lqr"):
+        code, c, K = laws.law_constants(row, V, params)
+        _tick_loop(code, c, K, laws.law_memory(code, c), run0, ref, 1)  # compiled before the clock starts
+        reps = 100
+        t0 = time.perf_counter()
+        total = _tick_loop(code, c, K, laws.law_memory(code, c), run0, ref, reps)
+        ns = (time.perf_counter() - t0) / (reps * run0.shape[0]) * 1e9
+        print(f"law_step {row}: {ns:.0f} ns per call")
+        assert math.isfinite(total)
+        assert ns < 20_000
