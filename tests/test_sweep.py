@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -29,9 +30,8 @@ def _short_file(
     """The default distribution with a short move (default 2 s move, 2 s hold): cheap runs, same parameters."""
     text = sweep.DEFAULT_FILE.read_text(encoding="utf-8")
     text = text.replace("move_time_s = 4.0", f"move_time_s = {move}").replace("hold_s = 8.0", f"hold_s = {hold}")
-    text = text.replace('estimator = "kf"', f'estimator = "{estimator}"').replace(
-        'engine = "batched"', f'engine = "{engine}"'
-    )
+    text = text.replace('estimator = "kf"', f'estimator = "{estimator}"')
+    text = re.sub(r'engine = "\w+"', f'engine = "{engine}"', text)
     text = text.replace("gust_start_s = {low = 1.0, high = 5.0}", "gust_start_s = {low = 0.5, high = 3.0}")
     p = tmp_path / "sweep.toml"
     p.write_text(text, encoding="utf-8")
@@ -222,7 +222,7 @@ def test_two_worker_dask_cluster_gives_the_results_of_one_process(tmp_path: Path
 
 @pytest.mark.slow
 def test_two_worker_dask_cluster_with_the_batched_engine_gives_the_results_of_one_process(tmp_path: Path) -> None:
-    """The default engine (batched, the filter and the mixer): chunks of 2 runs on two workers write the table of
+    """The batched engine (the filter and the mixer): chunks of 2 runs on two workers write the table of
     one chunk of 4 in this process (a run's result does not depend on its batch)."""
     f = _short_file(tmp_path, engine="batched", estimator="kf", move=1.0, hold=0.5)
     one, two = tmp_path / "one", tmp_path / "two"

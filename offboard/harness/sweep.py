@@ -5,10 +5,11 @@ the sensors' noise and latency, a wind gust and an initial swing from the distri
 controllers keep the nominal vehicle (the file's, default the paper's Table 1): what a controller tuned for one
 vehicle does with the vehicle it really flies. Every controller flies the same drawn runs (run ``i`` draws from
 the seed ``(seed, i)`` whatever the chunking, the worker or the order runs finish in), with the Kalman filter in
-the loop on the drawn sensors, run by run (``engine = "scalar"``, ``offboard.harness.sim.run``) or many runs at once in
+the loop on the drawn sensors, run by run (``engine = "scalar"``, ``offboard.harness.sim.run``), many runs at once in
 the batched numpy path (``engine = "batched"``, ``offboard.harness.batched``: the same plant, sensors, filter, mixer and
-sliding-mode law over arrays; controllers other than ``smc`` fall back to the scalar path there, which the
-summary says per controller).
+laws over arrays), or run by run as machine code (``engine = "compiled"``, ``offboard.harness.compiled``: the same
+equations compiled with numba, the default); the two fast engines fly every controller but ``smc-attitude``, which
+falls back to the scalar path (the summary says per controller).
 
 The file (``offboard/harness/sweeps/default.toml`` is the default and the documentation of every key)::
 
@@ -128,6 +129,8 @@ class SweepConfig:
         }
 
 
+#: the paths a sweep's runs can be flown by (see the module docstring)
+ENGINES = ("scalar", "batched", "compiled")
 SUCCESS_KEYS = ("max_swing_rad", "residual_swing_rad", "tracking_rms_m", "final_error_m", "divergence_m")
 
 
@@ -167,8 +170,8 @@ def load_config(path: str | Path | None) -> SweepConfig:
         raise UserError(f"sweep file {p}: unknown key(s) run.{', run.'.join(sorted(run))}")
     if kw.get("scenario", "rest-to-rest") != "rest-to-rest":
         raise UserError(f"sweep file {p}: run.scenario: only 'rest-to-rest' is supported, got {kw['scenario']!r}")
-    if kw.get("engine", "scalar") not in ("scalar", "batched"):
-        raise UserError(f"sweep file {p}: run.engine must be 'scalar' or 'batched', got {kw['engine']!r}")
+    if kw.get("engine", "scalar") not in ENGINES:
+        raise UserError(f"sweep file {p}: run.engine must be one of {', '.join(ENGINES)}, got {kw['engine']!r}")
     for key in ("move_time_s", "distance_m", "hold_s"):
         if key in kw and not (math.isfinite(kw[key]) and kw[key] > 0):
             raise UserError(f"sweep file {p}: run.{key} must be > 0, got {kw[key]!r}")
@@ -398,7 +401,12 @@ def run_chunk(config_dict: dict[str, Any], controller: str, runs: list[int]) -> 
 
     config = config_from_dict(config_dict)
     cpu0 = time.process_time()
-    if engine_for(config, controller) == "batched":
+    engine = engine_for(config, controller)
+    if engine == "compiled":
+        from offboard.harness.compiled.engine import run_batch as run_compiled
+
+        rows = run_compiled(config, controller, runs)
+    elif engine == "batched":
         from offboard.harness.batched import run_batch
 
         rows = run_batch(config, controller, runs)
@@ -411,11 +419,12 @@ def run_chunk(config_dict: dict[str, Any], controller: str, runs: list[int]) -> 
 
 
 def engine_for(config: SweepConfig, controller: str) -> str:
-    """The path that flies ``controller``'s runs: the file's engine, except that the batched path has only the
-    sliding-mode law and the stock cascade (``smc``, ``cascade``; the others fall back to the scalar path)."""
+    """The path that flies ``controller``'s runs: the file's engine, except that the batched and compiled paths fly
+    the rows of ``offboard.harness.batched.BATCHED_LAWS`` only (``smc-attitude``, through PX4's attitude loops,
+    falls back to the scalar path)."""
     from offboard.harness.batched import BATCHED_LAWS
 
-    return "batched" if config.engine == "batched" and controller in BATCHED_LAWS else "scalar"
+    return config.engine if config.engine in ("batched", "compiled") and controller in BATCHED_LAWS else "scalar"
 
 
 def single_run_speed(config: SweepConfig) -> dict[str, float]:

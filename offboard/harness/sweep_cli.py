@@ -23,6 +23,9 @@ from offboard.harness import sweep
 from offboard.outputs import prepare_output_dir, write_atomic
 
 RESULTS = "results.csv"
+#: runs per Dask task by engine: enough to amortize a task's set-up (the batched path's arrays, the compiled path's
+#: reference rows), few enough to keep both workers busy to the end and to lose little to an interruption
+CHUNK = {"scalar": 10, "batched": 500, "compiled": 200}
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -34,7 +37,7 @@ def configure(p: argparse.ArgumentParser) -> None:
         help=f"comma-separated controllers (default: smc,cascade; known: {', '.join(registry.CONTROLLERS)})",
     )
     p.add_argument("--file", metavar="TOML", help="distributions and success criteria (default: the shipped one)")
-    p.add_argument("--engine", choices=("scalar", "batched"), help="override the file's run.engine")
+    p.add_argument("--engine", choices=sweep.ENGINES, help="override the file's run.engine")
     p.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler (tcp://host:8786); default: a local cluster")
     p.add_argument(
         "--workers",
@@ -44,7 +47,11 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="local cluster worker processes (default: the CPU count); 0 runs everything in this process",
     )
     p.add_argument(
-        "--chunk", type=int, default=None, metavar="K", help="runs per Dask task (default: 10 scalar, 500 batched)"
+        "--chunk",
+        type=int,
+        default=None,
+        metavar="K",
+        help="runs per Dask task (default: 10 scalar, 500 batched, 200 compiled)",
     )
     p.add_argument("--no-figures", action="store_true", help="no PNG figures")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (an existing sweep there is resumed)")
@@ -90,7 +97,7 @@ def execute(
     config = sweep.load_config(file)
     if engine is not None:
         config = sweep.config_from_dict({**config.to_dict(), "engine": engine})
-    chunk = chunk or (500 if config.engine == "batched" else 10)
+    chunk = chunk or CHUNK.get(config.engine, 10)
     if chunk < 1:
         raise UserError(f"--chunk must be >= 1, got {chunk}")
     out = prepare_output_dir(out_dir)
@@ -99,8 +106,8 @@ def execute(
     columns = sweep.table_columns()
     done = _read_done(out / RESULTS, columns)
     todo = [(c, [r for r in range(runs) if (c, r) not in done]) for c in controllers]
-    # runs of a controller the batched engine does not fly go in the scalar path's chunks (10 runs)
-    size = {c: chunk if sweep.engine_for(config, c) == "batched" else min(chunk, 10) for c in controllers}
+    # runs of a controller the fast engines do not fly go in the scalar path's chunks (10 runs)
+    size = {c: chunk if sweep.engine_for(config, c) != "scalar" else min(chunk, 10) for c in controllers}
     tasks = [(c, rs[i : i + size[c]]) for c, rs in todo for i in range(0, len(rs), size[c])]
     n_todo = sum(len(rs) for _, rs in tasks)
     baseline = sweep.single_run_speed(config) if n_todo else None

@@ -1,0 +1,493 @@
+"""One compiled run, and the sweep's rows for a chunk of runs (``engine = "compiled"``).
+
+:func:`fly_run` is ``offboard.harness.batched.simulate``'s loop for one run, as machine code: at each control tick
+the true state, the filter's records due and its estimate, the reference, the law, the command through the nominal
+motor lag into the filter, the gust, the sweep's figures, the mixer; then the plant's steps with the motors' lag,
+the drag, RK4, the cable's tension and the sensors sampling. The same order as the numpy path and the scalar path
+(``offboard.harness.sim.run``), so the three agree (``tests/test_compiled_engine.py``).
+
+:func:`simulate` is the Python side: it builds each run's constants, its sensor schedule
+(``offboard.harness.compiled.schedule``) and the shared reference rows, then flies the runs one after another.
+:func:`run_batch` gives the sweep's rows, as ``offboard.harness.batched.run_batch`` does.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from offboard.harness.compiled import kf as ckf
+from offboard.harness.compiled import laws as claws
+from offboard.harness.compiled import plant as cp
+from offboard.harness.compiled.layout import (
+    ADVANCE,
+    EST_FX,
+    EST_FY,
+    EST_SIZE,
+    GYRO,
+    IMU,
+    REF_FX,
+    REF_FY,
+    REF_SIZE,
+    REF_Z,
+    pure_kernel,
+)
+
+# ---- a run's figures (offboard.harness.batched.Figures, one run) --------------------------------------------------
+FIG_PEAK, FIG_RESIDUAL, FIG_SQ, FIG_N, FIG_FINAL, FIG_EST_ERR, FIG_SLACK, FIG_FINITE, FIG_SATURATED, FIG_MIN_TENSION = (
+    range(10)
+)
+FIG_SIZE = 10
+#: rows of a run's scratch (``fly_run``'s ``ws``: RK4's stages, the derivative, the input, the command, the gust,
+#: the true state and the estimate, the lagged command, the motors' thrusts and commands)
+WS_ROWS = 14
+#: the logged columns besides the state (``offboard.harness.batched.simulate``'s names)
+LOG_NAMES = ("alpha", "e_Fx", "e_Fy", "e_z", "est_Fx0", "est_Fy0")
+
+
+@pure_kernel
+def _fmax(a: float, b: float) -> float:
+    """``np.fmax``: the larger, a NaN ignored."""
+    if b != b:
+        return a
+    if a != a:
+        return b
+    return a if a >= b else b
+
+
+@pure_kernel
+def _fuse_due(
+    tick: int,
+    ev_i: int,
+    ev: np.ndarray,
+    pay: np.ndarray,
+    rec_start: np.ndarray,
+    rec_time: np.ndarray,
+    rec_val: np.ndarray,
+    kf_c: np.ndarray,
+    kf_f: np.ndarray,
+    kf_n: np.ndarray,
+) -> int:
+    """The filter's events of this tick, in the run's order (``offboard.harness.batched_sensors.schedule``): a
+    record's fusion, its gyro's, or a block's advance; returns the index of the next tick's first event."""
+    n_ev = ev.shape[0]
+    while ev_i < n_ev and ev[ev_i, 0] == tick:
+        code = ev[ev_i, 2]
+        if code == GYRO:
+            j = rec_start[IMU] + int(pay[ev_i])
+            ckf.kf_fuse_gyro(kf_c, kf_f, kf_n, rec_time[j], rec_val[j, 3:6])
+        elif code >= ADVANCE:
+            ckf.kf_advance(kf_c, kf_f, kf_n, code - ADVANCE, pay[ev_i])
+        else:
+            j = rec_start[code] + int(pay[ev_i])
+            ckf.kf_fuse(kf_c, kf_f, kf_n, code, rec_time[j], rec_val[j])
+        ev_i += 1
+    return ev_i
+
+
+@pure_kernel
+def _sample_due(
+    step: int,
+    next_rec: np.ndarray,
+    rec_start: np.ndarray,
+    rec_step: np.ndarray,
+    rec_noise: np.ndarray,
+    rec_val: np.ndarray,
+    bias: np.ndarray,
+    x: np.ndarray,
+    u: np.ndarray,
+    p: np.ndarray,
+    deriv: np.ndarray,
+) -> None:
+    """The records the sensors sample at plant step ``step`` (after it), their values from the state reached."""
+    have_deriv = False
+    for kind in range(4):
+        j = next_rec[kind]
+        if j >= rec_start[kind + 1] or rec_step[j] != step:
+            continue
+        if kind == IMU and not have_deriv:
+            cp.derivative(x, u, p, deriv)
+            have_deriv = True
+        cp.measure(kind, x, deriv, p[cp.P_G], bias, rec_noise[j], rec_val[j])
+        next_rec[kind] = j + 1
+
+
+@pure_kernel
+def fly_run(
+    ref: np.ndarray,
+    law_ref: np.ndarray,
+    dt: float,
+    plant_dt: float,
+    substeps: int,
+    residual_from: float,
+    law_code: int,
+    law_c: np.ndarray,
+    law_K: np.ndarray,
+    law_mem: np.ndarray,
+    flat: np.ndarray,
+    lag_tau: float,
+    use_kf: bool,
+    kf_c: np.ndarray,
+    kf_f: np.ndarray,
+    kf_n: np.ndarray,
+    use_mixer: bool,
+    mix_c: np.ndarray,
+    hover: float,
+    p: np.ndarray,
+    x: np.ndarray,
+    gust_c: np.ndarray,
+    rec_start: np.ndarray,
+    rec_step: np.ndarray,
+    rec_time: np.ndarray,
+    rec_noise: np.ndarray,
+    rec_val: np.ndarray,
+    bias: np.ndarray,
+    ev: np.ndarray,
+    pay: np.ndarray,
+    log_every: int,
+    log_x: np.ndarray,
+    log_e: np.ndarray,
+    fig: np.ndarray,
+    ws: np.ndarray,
+    next_rec: np.ndarray,
+) -> None:
+    """Fly one run (``offboard.harness.batched.simulate`` for one of its runs): ``ref`` / ``law_ref`` (ticks, 28) the
+    reference rows for the figures and for the law (a shaped reference for ``zv`` / ``zvd``, else the same array),
+    ``flat`` the controller's nominal flat constants (l, g, c), ``lag_tau`` the nominal motor time constant (s), the
+    state ``x`` (18,) flown in place, the records (``rec_*``: per kind from ``rec_start[kind]``, sampling steps,
+    times, noise, values filled as sampled) and the filter's events ``ev`` (tick, slot, code) with ``pay``; the
+    figures into ``fig`` (``FIG_*``), every ``log_every``-th tick (and the last) into ``log_x`` / ``log_e`` (0:
+    none). ``ws`` (``WS_ROWS``, 24) and ``next_rec`` (4,) are the caller's scratch (this kernel allocates nothing:
+    it runs without numba's reference counting, ``layout.pure_kernel``)."""
+    n_ticks = ref.shape[0]
+    kl, kg, kc = flat[0], flat[1], flat[2]
+    for r in range(ws.shape[0]):
+        for i in range(ws.shape[1]):
+            ws[r, i] = 0.0
+    work = ws[0:5, 0:18]  # RK4's stages
+    deriv = ws[5, 0:18]
+    u = ws[6, 0:13]
+    uc = ws[7, 0:4]
+    dist = ws[8, 0:9]
+    truth = ws[9, 0:EST_SIZE]
+    est = ws[10, 0:EST_SIZE]
+    lagged = ws[11, 0:3]
+    f_mot = ws[12, 0:4]
+    cmd = ws[13, 0:4]
+    for i in range(4):
+        f_mot[i] = cmd[i] = 0.25 * hover
+        next_rec[i] = rec_start[i]
+    peak, residual, sq_sum, final, est_err = -np.inf, -np.inf, 0.0, 0.0, 0.0
+    saturated, min_tension, slack = 0.0, np.inf, 0
+    finite = True
+    t_prev = 0.0
+    ev_i = 0
+    step = 0
+    li = 0
+    for tick in range(n_ticks):
+        t = tick * dt
+        cp.truth_state(x, kl, kg, kc, truth)
+        if use_kf:
+            if tick == 0:
+                ckf.kf_initialize(kf_c, kf_f, kf_n, 0.0, truth)
+            ev_i = _fuse_due(tick, ev_i, ev, pay, rec_start, rec_time, rec_val, kf_c, kf_f, kf_n)
+            ckf.kf_estimate(kf_c, kf_f, kf_n, t, est)
+        else:
+            for i in range(EST_SIZE):
+                est[i] = truth[i]
+        sat = claws.law_step(law_code, law_c, law_K, law_mem, t, 0.0 if tick == 0 else dt, est, law_ref[tick], uc)
+        if use_kf:  # offboard.harness.sim.run(command_lag=True): the command through the nominal motor lag
+            if not use_mixer or tick == 0 or lag_tau == 0.0:
+                lagged[0], lagged[1], lagged[2] = uc[0], uc[1], uc[2]
+            else:
+                step_dt = t - t_prev
+                a_lag = 1.0 - math.exp(-step_dt / lag_tau) if step_dt > 0.0 else 0.0
+                for i in range(3):
+                    lagged[i] = lagged[i] + a_lag * (uc[i] - lagged[i])
+            t_prev = t
+            ckf.kf_push_command(kf_c, kf_f, kf_n, lagged[1], lagged[2], lagged[0])
+        u[0], u[1], u[2], u[3] = uc[0], uc[1], uc[2], uc[3]
+        cp.gust_at(gust_c, t, dist)
+        for i in range(9):
+            u[4 + i] = dist[i]
+        if sat:
+            saturated += 1.0
+        # the figures of the tick (offboard.harness.batched.Figures.tick)
+        r1, r2, r3 = x[12], x[13], x[14]
+        alpha = math.atan2(math.sqrt(r1 * r1 + r2 * r2), -r3)
+        e0 = x[0] + p[cp.P_L] * math.atan2(r1, -r3) - ref[tick, REF_FX]
+        e1 = x[1] + p[cp.P_L] * math.atan2(r2, -r3) - ref[tick, REF_FY]
+        e2 = x[2] - ref[tick, REF_Z]
+        ex, ey = est[EST_FX] - truth[EST_FX], est[EST_FY] - truth[EST_FY]
+        peak = _fmax(peak, alpha)
+        if t >= residual_from:
+            residual = _fmax(residual, alpha)
+        sq = e0 * e0 + e1 * e1 + e2 * e2
+        if math.isfinite(sq):
+            sq_sum = sq_sum + sq
+        final = math.sqrt(sq)
+        est_err = _fmax(est_err, math.hypot(ex, ey))
+        if log_every > 0 and (tick % log_every == 0 or tick == n_ticks - 1):
+            for i in range(18):
+                log_x[li, i] = x[i]
+            log_e[li, 0], log_e[li, 1], log_e[li, 2], log_e[li, 3] = alpha, e0, e1, e2
+            log_e[li, 4], log_e[li, 5] = ex, ey
+            li += 1
+        if use_mixer:
+            cp.mixer_allocate(mix_c, u[0], u[1], u[2], u[3], cmd)
+            cp.mixer_wrench(mix_c, f_mot, u)
+        if tick == n_ticks - 1:
+            break
+        for _ in range(substeps):
+            if use_mixer:
+                cp.mixer_step(mix_c, f_mot, cmd, u)
+            cp.apply_drag(u, x, dist[0:3], dist[6:9], p)
+            cp.rk4_step(x, u, p, plant_dt, work)
+            tens = cp.tension(x, u, p)
+            if tens <= 0.0:
+                slack += 1
+            min_tension = cp.nmin(min_tension, tens)
+            if use_kf:
+                _sample_due(step, next_rec, rec_start, rec_step, rec_noise, rec_val, bias, x, u, p, deriv)
+            step += 1
+        for i in range(18):
+            if not math.isfinite(x[i]):
+                finite = False
+    fig[FIG_PEAK], fig[FIG_RESIDUAL], fig[FIG_SQ], fig[FIG_N] = peak, residual, sq_sum, n_ticks
+    fig[FIG_FINAL], fig[FIG_EST_ERR], fig[FIG_SLACK] = final, est_err, slack
+    fig[FIG_FINITE] = 1.0 if finite else 0.0
+    fig[FIG_SATURATED], fig[FIG_MIN_TENSION] = saturated * dt, min_tension
+
+
+# ---- the Python side -----------------------------------------------------------------------------------------------
+def reference_rows(reference: Any, shaper: Any, n_ticks: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The reference sampled at every tick (ticks, 28), and the law's (shaped by ``shaper`` when given, once per
+    tick in order, as the batched path shapes it; else the same array)."""
+    rows = np.empty((n_ticks, REF_SIZE))
+    law = np.empty((n_ticks, REF_SIZE)) if shaper is not None else rows
+    for tick in range(n_ticks):
+        t = tick * dt
+        s = reference.sample(t)
+        rows[tick] = (*s.fx, *s.fy, *s.z, *s.psi)
+        if shaper is not None:
+            law[tick] = np.concatenate([np.asarray(v, dtype=float) for v in shaper(t, s.fx, s.fy, s.z, s.psi)])
+    return rows, law
+
+
+def _records(sched: Any) -> tuple[np.ndarray, ...]:
+    """A run's schedule (``offboard.harness.batched_sensors.RunSchedule``) as flat arrays: the first record of each
+    kind (5,), sampling steps, times, noise (n, 6) and values to fill (n, 6), the events and their payloads."""
+    counts = [len(s) for s in sched.steps]
+    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    n = int(start[-1])
+    steps = np.concatenate(sched.steps).astype(np.int64) if n else np.zeros(0, dtype=np.int64)
+    times = np.concatenate(sched.times).astype(float) if n else np.zeros(0)
+    noise = np.zeros((n, 6))
+    for kind, e in enumerate(sched.noise):
+        if len(e):
+            noise[start[kind] : start[kind + 1], : e.shape[1]] = e
+    ev = np.ascontiguousarray(sched.events, dtype=np.int64).reshape(-1, 3)
+    return start, steps, times, noise, np.full((n, 6), np.nan), ev, np.asarray(sched.payload, dtype=float)
+
+
+def simulate(
+    scenarios: list[Any],
+    vehicles: list[Any],
+    params: Any,
+    control_rate: float = 1000.0,
+    log_every: int = 1,
+    *,
+    estimator: str = "truth",
+    actuators: str = "ideal",
+    sensors: list[Any] | None = None,
+    seeds: list[int] | None = None,
+    load_sensor: bool = True,
+    plant_dt: float = 0.001,
+    tuning: Any = None,
+    law: str = "smc",
+    rows: tuple[np.ndarray, np.ndarray] | None = None,
+) -> dict[str, Any]:
+    """``offboard.harness.batched.simulate`` with the compiled kernels (the same arguments and log: ``t``, ``x``
+    (ticks, 18, B), the ``LOG_NAMES`` columns (ticks, B), ``saturated`` (s), ``slack_steps``, ``min_tension``, the
+    figures ``fig`` (B, ``FIG_SIZE``) and ``n_ticks``); the runs are flown one after another. ``rows``: the
+    reference rows of :func:`reference_rows` when the caller has them (a sweep samples its one reference once)."""
+    from estimators.filters.measured_kf import MeasuredTuning
+    from estimators.model.flatness import flat_constants
+    from offboard.harness.batched import BATCHED_LAWS, batched_law
+    from offboard.harness.compiled.schedule import schedule
+    from offboard.harness.sim import plant_scenario
+    from sim_bridge.plant import dynamics
+
+    if estimator not in ("truth", "kf") or actuators not in ("ideal", "mixer"):
+        raise ValueError("the compiled path flies estimator truth or kf, actuators ideal or mixer")
+    if law not in BATCHED_LAWS:
+        raise ValueError(f"the compiled path flies the laws {', '.join(BATCHED_LAWS)}, not {law!r}")
+    scs = [plant_scenario(s) for s in scenarios]
+    B = len(scs)
+    k = flat_constants(params.vehicle)
+    flat = np.array([k.l, k.g, k.c])
+    substeps = round(1.0 / (control_rate * plant_dt))
+    dt = substeps * plant_dt
+    n_ticks = math.floor(scs[0].duration / dt + 1e-9) + 1
+    if rows is None:
+        _, shaper = batched_law(law, params.vehicle, 1) if law != "smc" else (None, None)
+        rows = reference_rows(scs[0].reference, shaper, n_ticks, dt)
+    ref, law_ref = rows
+    if ref.shape[0] != n_ticks:
+        raise ValueError(f"reference rows for {ref.shape[0]} ticks, the runs have {n_ticks}")
+    code, law_c, law_K = claws.law_constants(law, params.vehicle, params)
+    arrival = getattr(scs[0], "arrival_time", None)
+    residual_from = math.inf if arrival is None else arrival + 2.0
+    keep = list(range(0, n_ticks, log_every)) if log_every > 0 else []
+    if keep and keep[-1] != n_ticks - 1:
+        keep.append(n_ticks - 1)
+    nk = len(keep)
+    log: dict[str, Any] = {"t": np.array(keep, dtype=float) * dt, "x": np.empty((nk, 18, B))}
+    log.update({n: np.empty((nk, B)) for n in LOG_NAMES})
+    figs = np.empty((B, FIG_SIZE))
+    use_kf, use_mixer = estimator == "kf", actuators == "mixer"
+    tuning = MeasuredTuning() if tuning is None else tuning
+    delay = 0.012  # the filter's fusion horizon behind the tick (BatchedMeasuredKalman's default, as batched flies it)
+    kf_c = ckf.kf_constants(params.vehicle, tuning, load_sensor=load_sensor, delay_s=delay, rate_hz=1.0 / dt)
+    empty_i, empty_f = np.zeros(5, dtype=np.int64), np.zeros(0)
+    for b in range(B):
+        v = vehicles[b]
+        if use_kf:
+            assert sensors is not None and seeds is not None
+            sched = schedule(
+                sensors[b],
+                v,
+                seeds[b],
+                n_ticks,
+                dt,
+                plant_dt,
+                substeps,
+                load_sensor=load_sensor,
+                delay_s=delay,
+                fuse_gyro=tuning.fuse_gyro,
+            )
+            start, steps, times, noise, vals, ev, pay = _records(sched)
+            bias = np.asarray(sched.bias, dtype=float)
+            kf_f, kf_n = ckf.kf_new_state(kf_c)
+        else:
+            start, steps, times, noise, vals = empty_i, empty_i[:0], empty_f, np.zeros((0, 6)), np.zeros((0, 6))
+            ev, pay, bias = np.zeros((0, 3), dtype=np.int64), empty_f, np.zeros(3)
+            kf_f, kf_n = np.zeros(1), np.zeros(1, dtype=np.int64)
+        hover = dynamics.hover_input(dynamics.plant_params(v, "paper"))[0]
+        x = np.array(scs[b].initial_state, dtype=float)
+        log_x, log_e = np.empty((max(nk, 1), 18)), np.empty((max(nk, 1), 6))
+        ws, next_rec = np.empty((WS_ROWS, EST_SIZE)), np.empty(4, dtype=np.int64)
+        fly_run(
+            ref,
+            law_ref,
+            dt,
+            plant_dt,
+            substeps,
+            residual_from,
+            code,
+            law_c,
+            law_K,
+            claws.law_memory(code, law_c),
+            flat,
+            params.vehicle.motor_time_constant,
+            use_kf,
+            kf_c,
+            kf_f,
+            kf_n,
+            use_mixer,
+            cp.mixer_constants(v, plant_dt),
+            hover,
+            cp.plant_constants(v),
+            x,
+            cp.gust_constants(scs[b].disturbance),
+            start,
+            steps,
+            times,
+            noise,
+            vals,
+            bias,
+            ev,
+            pay,
+            log_every,
+            log_x,
+            log_e,
+            figs[b],
+            ws,
+            next_rec,
+        )
+        if nk:
+            log["x"][:, :, b] = log_x[:nk]
+            for i, n in enumerate(LOG_NAMES):
+                log[n][:, b] = log_e[:nk, i]
+    log.update(
+        saturated=figs[:, FIG_SATURATED].copy(),
+        min_tension=figs[:, FIG_MIN_TENSION].copy(),
+        slack_steps=figs[:, FIG_SLACK].astype(int),
+        fig=figs,
+        n_ticks=n_ticks,
+    )
+    return log
+
+
+_REFERENCES: dict[tuple[Any, ...], tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _sweep_reference(config: Any, controller: str, scenario: Any, params: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The sweep's one reference as rows (and the law's, shaped for ``zv`` / ``zvd``), sampled once per process for
+    a file's move and nominal vehicle: every run of every chunk flies the same reference (``sweep.scenario``), and
+    sampling its 13 001 ticks costs as much as flying 40 runs."""
+    from offboard.harness.batched import batched_law
+
+    key = (config.move_time_s, config.distance_m, config.hold_s, config.vehicle_file, controller)
+    if key not in _REFERENCES:
+        n_ticks = math.floor(scenario.duration / 0.001 + 1e-9) + 1
+        _, shaper = batched_law(controller, params.vehicle, 1) if controller != "smc" else (None, None)
+        if len(_REFERENCES) > 16:
+            _REFERENCES.clear()
+        _REFERENCES[key] = reference_rows(scenario.reference, shaper, n_ticks, 0.001)
+    return _REFERENCES[key]
+
+
+def run_batch(config: Any, controller: str, runs: list[int]) -> list[dict[str, Any]]:
+    """The sweep's rows for ``runs`` with the compiled engine: the rows ``offboard.harness.batched.run_batch`` and
+    ``offboard.harness.sweep.run_one`` give."""
+    from estimators.model.vehicle import load_vehicle
+    from offboard.control.controllers import registry
+    from offboard.harness import sweep
+
+    nominal = load_vehicle(config.vehicle_file)
+    draws = [sweep.draw(config, r, nominal) for r in runs]
+    vehicles = [sweep.plant_vehicle(nominal, d) for d in draws]
+    scs = [sweep.scenario(config, d) for d in draws]
+    params = registry.smc_params(nominal)
+    kw: dict[str, Any] = {"estimator": "truth" if config.estimator == "truth" else "kf", "actuators": config.actuators}
+    if kw["estimator"] == "kf":
+        kw.update(sensors=[sweep.sensor_preset(config, d) for d in draws], seeds=[int(d["sensor_seed"]) for d in draws])
+        kw.update(tuning=registry.filter_tuning(controller))
+    wall0 = time.perf_counter()
+    rows = _sweep_reference(config, controller, scs[0], params)
+    log = simulate(scs, vehicles, params, log_every=0, law=controller, rows=rows, **kw)
+    wall = time.perf_counter() - wall0
+    fig = log["fig"]
+    sim_s = (log["n_ticks"] - 1) * 0.001  # the scalar log's last time, tick * control_dt
+    rows = []
+    for b, (r, d) in enumerate(zip(runs, draws)):
+        f = {
+            "peak_swing_rad": float(fig[b, FIG_PEAK]),
+            "residual_swing_rad": float(fig[b, FIG_RESIDUAL]) if fig[b, FIG_RESIDUAL] > -math.inf else math.nan,
+            "tracking_rms_m": float(math.sqrt(fig[b, FIG_SQ] / fig[b, FIG_N])),
+            "final_error_m": float(fig[b, FIG_FINAL]),
+            "max_estimate_error_m": float(fig[b, FIG_EST_ERR]),
+            "slack_steps": int(fig[b, FIG_SLACK]),
+            "completed": bool(fig[b, FIG_FINITE]),
+        }
+        failure = sweep.verdict(config, f)
+        row: dict[str, Any] = {"run": r, "controller": controller}
+        row.update({kk: d[kk] for kk in sweep.PARAMETERS})
+        row.update(f)
+        row.update({"success": failure == "", "failure": failure, "sim_s": sim_s, "wall_s": wall / len(runs)})
+        rows.append(row)
+    return rows

@@ -1,0 +1,149 @@
+"""The compiled sweep engine (``offboard.harness.compiled``) against the scalar path (``offboard.harness.sim.run``):
+drawn runs of the default sweep file flown by machine code give the scalar path's trajectories and estimates to
+1e-9, for every controller the engine flies, and ``slung sweep --engine compiled`` writes the scalar engine's
+table. (The component kernels have their own tests: ``test_compiled_plant``, ``_kf``, ``_laws``, ``_schedule``.)"""
+
+from __future__ import annotations
+
+import csv
+import re
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from estimators.model.vehicle import Vehicle
+from offboard.control import smc
+from offboard.control.controllers import registry
+from offboard.harness import sim, sweep
+from offboard.harness.compiled import engine
+from offboard.harness.sweep_cli import execute
+from offboard.logs.runlog import SimConfig
+
+V = Vehicle()
+
+
+def _short_file(tmp_path: Path, engine: str = "compiled", estimator: str = "kf", move: float = 1.0, hold: float = 0.5):
+    """The default distribution with a short move and hold (cheap runs, the same parameters)."""
+    text = sweep.DEFAULT_FILE.read_text(encoding="utf-8")
+    text = text.replace("move_time_s = 4.0", f"move_time_s = {move}").replace("hold_s = 8.0", f"hold_s = {hold}")
+    text = text.replace('estimator = "kf"', f'estimator = "{estimator}"')
+    text = re.sub(r'engine = "\w+"', f'engine = "{engine}"', text)
+    text = text.replace("gust_start_s = {low = 1.0, high = 5.0}", "gust_start_s = {low = 0.5, high = 2.0}")
+    p = tmp_path / "sweep.toml"
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def _drawn(cfg: sweep.SweepConfig, n: int = 3) -> tuple[list, list, list, list[int]]:
+    """Runs 0..n-1 of the file: true vehicles, scenarios, sensor presets, sensor seeds."""
+    draws = [sweep.draw(cfg, r, V) for r in range(n)]
+    return (
+        [sweep.plant_vehicle(V, d) for d in draws],
+        [sweep.scenario(cfg, d) for d in draws],
+        [sweep.sensor_preset(cfg, d) for d in draws],
+        [int(d["sensor_seed"]) for d in draws],
+    )
+
+
+@pytest.mark.parametrize("switching", ["sign", "smooth"])
+def test_true_state_runs_equal_the_scalar_path(tmp_path: Path, switching: str) -> None:
+    """The true state into the law, ideal actuators: three drawn runs (masses, cable lengths, inertia, gusts,
+    initial swings) fly the scalar path's trajectories to 1e-9; one on a vehicle with still-air drag."""
+    cfg = sweep.load_config(_short_file(tmp_path, estimator="truth", move=2.0, hold=1.0))
+    params = smc.ControllerParams.for_vehicle(V, switching=switching)
+    vehicles, scs, _, _ = _drawn(cfg)
+    vehicles[2] = replace(vehicles[2], linear_drag=0.8, angular_drag=0.02)
+    log = engine.simulate(scs, vehicles, params)
+    for b in range(3):
+        ref = sim.run(scs[b], vehicles[b], params, SimConfig())
+        assert ref.data.shape[0] == log["x"].shape[0]
+        np.testing.assert_allclose(log["x"][:, :, b], ref.data[:, 1:19], rtol=0.0, atol=1e-9)
+        np.testing.assert_allclose(log["alpha"][:, b], ref.column("alpha"), rtol=0.0, atol=1e-9)
+        assert ref.column("alpha").max() > 0.05  # the runs swing: not a comparison of two resting states
+
+
+@pytest.mark.parametrize("law", ["smc", "cascade", "zvd", "swing-feedback", "lqr"])
+def test_runs_with_the_filter_and_the_mixer_equal_the_scalar_path(tmp_path: Path, law: str) -> None:
+    """The sweep's default setting: the measured-input Kalman filter on each run's drawn sensors (noise, latency:
+    late records dropped), the mixer with each run's motor lag, the command into the filter through the nominal
+    motor lag. Three drawn runs: the scalar path's plant trajectories and estimates to 1e-9, for every row."""
+    cfg = sweep.load_config(_short_file(tmp_path, move=2.0 if law != "smc" else 1.0))
+    params = registry.smc_params(V)
+    vehicles, scs, presets, seeds = _drawn(cfg)
+    assert len({v.motor_time_constant for v in vehicles}) == 3
+    log = engine.simulate(
+        scs,
+        vehicles,
+        params,
+        estimator="kf",
+        actuators="mixer",
+        sensors=presets,
+        seeds=seeds,
+        tuning=registry.filter_tuning(law),
+        law=law,
+    )
+    for b in range(3):
+        sim_cfg = SimConfig(estimator="kf", sensors=cfg.sensors, actuators="mixer", seed=seeds[b])
+        ref = sim.run(
+            scs[b],
+            vehicles[b],
+            params,
+            sim_cfg,
+            controller=registry.make(law, V),
+            sensor_preset=presets[b],
+            command_lag=True,
+            tuning=registry.filter_tuning(law),
+        )
+        assert ref.data.shape[0] == log["x"].shape[0]
+        np.testing.assert_allclose(log["x"][:, :, b], ref.data[:, 1:19], rtol=0.0, atol=1e-9)
+        for col in ("est_Fx0", "est_Fy0"):  # the filter's estimate, not only the plant it steers
+            np.testing.assert_allclose(log[col][:, b], ref.column(col), rtol=0.0, atol=1e-9)
+        assert np.abs(ref.column("est_Fx0")).max() > 1e-3  # a real estimate, not the true state
+        assert ref.column("alpha").max() > 0.05
+
+
+@pytest.mark.parametrize("controller", ["smc", "cascade"])
+def test_compiled_sweep_gives_the_scalar_sweeps_table(tmp_path: Path, controller: str) -> None:
+    """``slung sweep`` with the compiled engine writes the scalar engine's table: the same verdicts, the same
+    figures to 1e-9."""
+    tables = {}
+    for eng in ("scalar", "compiled"):
+        (tmp_path / eng).mkdir()
+        f = _short_file(tmp_path / eng, engine=eng, move=1.0, hold=2.2)
+        s = execute(3, [controller], tmp_path / eng / "out", file=str(f), workers=0, figures=False, progress=False)
+        assert s["engine_by_controller"] == {controller: eng}
+        with open(tmp_path / eng / "out" / "results.csv", encoding="utf-8") as fh:
+            tables[eng] = list(csv.DictReader(fh))
+    assert len(tables["scalar"]) == len(tables["compiled"]) == 3
+    for a, b in zip(tables["scalar"], tables["compiled"]):
+        assert (a["run"], a["success"], a["failure"], a["completed"]) == (
+            b["run"],
+            b["success"],
+            b["failure"],
+            b["completed"],
+        )
+        for k in ("peak_swing_rad", "residual_swing_rad", "tracking_rms_m", "final_error_m", "max_estimate_error_m"):
+            assert abs(float(a[k]) - float(b[k])) <= 1e-9, k  # (a NaN fails: every figure exists here)
+        assert a["sim_s"] == b["sim_s"]
+
+
+@pytest.mark.slow
+def test_two_worker_dask_cluster_with_the_compiled_engine_gives_the_results_of_one_process(tmp_path: Path) -> None:
+    """Chunks of 2 runs on two Dask workers (each loading the compiled kernels) write the table of one chunk of 4 in
+    this process, for the sliding-mode law and a baseline."""
+    f = _short_file(tmp_path)
+    one, two = tmp_path / "one", tmp_path / "two"
+    execute(4, ["smc", "lqr"], one, file=str(f), workers=0, figures=False, progress=False)
+    s = execute(4, ["smc", "lqr"], two, file=str(f), workers=2, chunk=2, figures=False, progress=False)
+    assert s["engine_by_controller"] == {"smc": "compiled", "lqr": "compiled"}
+    assert (one / "results.csv").read_text(encoding="utf-8") == (two / "results.csv").read_text(encoding="utf-8")
+
+
+def test_smc_attitude_falls_back_to_the_scalar_path(tmp_path: Path) -> None:
+    cfg = sweep.load_config(_short_file(tmp_path))
+    assert sweep.engine_for(cfg, "smc-attitude") == "scalar"
+    assert sweep.engine_for(cfg, "smc") == "compiled"
+    with pytest.raises(ValueError, match="smc-attitude"):
+        engine.simulate([], [], registry.smc_params(V), law="smc-attitude")
