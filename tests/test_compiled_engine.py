@@ -141,9 +141,16 @@ def test_two_worker_dask_cluster_with_the_compiled_engine_gives_the_results_of_o
     assert (one / "results.csv").read_text(encoding="utf-8") == (two / "results.csv").read_text(encoding="utf-8")
 
 
-def test_smc_attitude_falls_back_to_the_scalar_path(tmp_path: Path) -> None:
+def test_smc_attitude_is_compiled_and_falls_back_to_the_scalar_path_in_the_batched_engine(tmp_path: Path) -> None:
+    """The compiled engine flies every row (``smc-attitude``: ``tests/test_compiled_attitude.py``), the batched one
+    leaves ``smc-attitude`` to the scalar path; the attitude-level law flies only through PX4's attitude loops."""
     cfg = sweep.load_config(_short_file(tmp_path))
-    assert sweep.engine_for(cfg, "smc-attitude") == "scalar"
+    assert sweep.engine_for(cfg, "smc-attitude") == "compiled"
     assert sweep.engine_for(cfg, "smc") == "compiled"
-    with pytest.raises(ValueError, match="smc-attitude"):
-        engine.simulate([], [], registry.smc_params(V), law="smc-attitude")
+    batched_cfg = sweep.load_config(_short_file(tmp_path, engine="batched"))
+    assert sweep.engine_for(batched_cfg, "smc-attitude") == "scalar"
+    assert sweep.engine_for(batched_cfg, "smc") == "batched"
+    with pytest.raises(ValueError, match="'smc-attitude' with actuators px4-attitude"):
+        engine.simulate([], [], registry.smc_params(V), law="smc-attitude", actuators="mixer")
+    with pytest.raises(ValueError, match="'smc' with actuators ideal or mixer"):
+        engine.simulate([], [], registry.smc_params(V), law="smc", actuators="px4-attitude")

@@ -8,8 +8,9 @@ the seed ``(seed, i)`` whatever the chunking, the worker or the order runs finis
 the loop on the drawn sensors, run by run (``engine = "scalar"``, ``offboard.harness.sim.run``), many runs at once in
 the batched numpy path (``engine = "batched"``, ``offboard.harness.batched``: the same plant, sensors, filter, mixer and
 laws over arrays), or run by run as machine code (``engine = "compiled"``, ``offboard.harness.compiled``: the same
-equations compiled with numba, the default); the two fast engines fly every controller but ``smc-attitude``, which
-falls back to the scalar path (the summary says per controller).
+equations compiled with numba, the default). The compiled engine flies every controller; the batched one every one
+but ``smc-attitude`` (through PX4's attitude loops), which falls back to the scalar path (the summary says per
+controller).
 
 The file (``offboard/harness/sweeps/default.toml`` is the default and the documentation of every key)::
 
@@ -419,12 +420,16 @@ def run_chunk(config_dict: dict[str, Any], controller: str, runs: list[int]) -> 
 
 
 def engine_for(config: SweepConfig, controller: str) -> str:
-    """The path that flies ``controller``'s runs: the file's engine, except that the batched and compiled paths fly
-    the rows of ``offboard.harness.batched.BATCHED_LAWS`` only (``smc-attitude``, through PX4's attitude loops,
-    falls back to the scalar path)."""
+    """The path that flies ``controller``'s runs: the file's engine, except that the batched path flies the rows of
+    ``offboard.harness.batched.BATCHED_LAWS`` only (``smc-attitude``, through PX4's attitude loops, falls back to the
+    scalar path) and the compiled path those of ``offboard.harness.compiled.inputs.COMPILED_LAWS`` (every row)."""
+    if config.engine == "compiled":
+        from offboard.harness.compiled.inputs import COMPILED_LAWS  # loads numba: only for the compiled engine
+
+        return "compiled" if controller in COMPILED_LAWS else "scalar"
     from offboard.harness.batched import BATCHED_LAWS
 
-    return config.engine if config.engine in ("batched", "compiled") and controller in BATCHED_LAWS else "scalar"
+    return "batched" if config.engine == "batched" and controller in BATCHED_LAWS else "scalar"
 
 
 def single_run_speed(config: SweepConfig) -> dict[str, float]:

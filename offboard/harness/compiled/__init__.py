@@ -2,10 +2,14 @@
 same equations, in the same order, as the scalar path (``offboard.harness.sim.run``) and the numpy batched path
 (``offboard.harness.batched``), one run after another.
 
-- :mod:`.layout`: the shared vector layouts (the estimate, the reference) and the JIT decorator every kernel uses;
+- :mod:`.layout`: the shared vector layouts (the estimate, the reference), the JIT decorators every kernel uses and
+  Python's ``min``, ``max``, ``math.hypot`` for kernels mirroring scalar Python;
 - :mod:`.plant`: the plant, its drag, the cable tension, the sensors' values, the gust, the mixer;
 - :mod:`.kf`: the measured-input Kalman filter (``estimators.filters.measured_kf``);
 - :mod:`.laws`: the controllers (``smc``, the cascade rows, ``swing-feedback``, ``lqr``);
+- :mod:`.attitude_law`: the attitude-level law (``smc-attitude``);
+- :mod:`.px4_loops`: PX4's attitude P, rate PID, allocator and motors, which ``smc-attitude`` flies through;
 - :mod:`.schedule`: a run's sensor records and the filter's events, from the run's generator;
+- :mod:`.inputs`: a run's reference rows, record arrays, and the law's and actuators' constants;
 - :mod:`.engine`: one run's loop, and the sweep's rows for a chunk of runs.
 """

@@ -2,13 +2,15 @@
 
 :func:`fly_run` is ``offboard.harness.batched.simulate``'s loop for one run, as machine code: at each control tick
 the true state, the filter's records due and its estimate, the reference, the law, the command through the nominal
-motor lag into the filter, the gust, the sweep's figures, the mixer; then the plant's steps with the motors' lag,
-the drag, RK4, the cable's tension and the sensors sampling. The same order as the numpy path and the scalar path
-(``offboard.harness.sim.run``), so the three agree (``tests/test_compiled_engine.py``).
+motor lag into the filter, the gust, the sweep's figures, the mixer or PX4's attitude setpoint; then the plant's
+steps with the motors' lag (behind PX4's attitude P, rate PID and allocator for the attitude-level law), the drag,
+RK4, the cable's tension and the sensors sampling. The same order as the numpy path and the scalar path
+(``offboard.harness.sim.run``), so they agree (``tests/test_compiled_engine.py``, ``tests/test_compiled_attitude.py``).
 
-:func:`simulate` is the Python side: it builds each run's constants, its sensor schedule
+:func:`simulate` is the Python side: it builds each run's constants (:mod:`.inputs`), its sensor schedule
 (``offboard.harness.compiled.schedule``) and the shared reference rows, then flies the runs one after another.
-:func:`run_batch` gives the sweep's rows, as ``offboard.harness.batched.run_batch`` does.
+:func:`run_batch` gives the sweep's rows, as ``offboard.harness.batched.run_batch`` and ``sweep.run_one`` do: every
+row, ``smc-attitude`` included.
 """
 
 from __future__ import annotations
@@ -19,9 +21,13 @@ from typing import Any
 
 import numpy as np
 
+from offboard.harness.compiled import attitude_law as cal
+from offboard.harness.compiled import inputs as cin
 from offboard.harness.compiled import kf as ckf
 from offboard.harness.compiled import laws as claws
 from offboard.harness.compiled import plant as cp
+from offboard.harness.compiled import px4_loops as cpx
+from offboard.harness.compiled.inputs import ACT_IDEAL, ACT_MIXER, ACT_PX4_ATTITUDE
 from offboard.harness.compiled.layout import (
     ADVANCE,
     EST_FX,
@@ -31,7 +37,6 @@ from offboard.harness.compiled.layout import (
     IMU,
     REF_FX,
     REF_FY,
-    REF_SIZE,
     REF_Z,
     pure_kernel,
 )
@@ -41,8 +46,8 @@ FIG_PEAK, FIG_RESIDUAL, FIG_SQ, FIG_N, FIG_FINAL, FIG_EST_ERR, FIG_SLACK, FIG_FI
     range(10)
 )
 FIG_SIZE = 10
-#: rows of a run's scratch (``fly_run``'s ``ws``: RK4's stages, the derivative, the input, the command, the gust,
-#: the true state and the estimate, the lagged command, the motors' thrusts and commands)
+#: rows of a run's scratch (``fly_run``'s ``ws``: RK4's stages, the derivative, the input, the command (the attitude
+#: law's 7 floats), the gust, the true state and the estimate, the lagged command, the motors' thrusts and commands)
 WS_ROWS = 14
 #: the logged columns besides the state (``offboard.harness.batched.simulate``'s names)
 LOG_NAMES = ("alpha", "e_Fx", "e_Fy", "e_z", "est_Fx0", "est_Fy0")
@@ -133,8 +138,10 @@ def fly_run(
     kf_c: np.ndarray,
     kf_f: np.ndarray,
     kf_n: np.ndarray,
-    use_mixer: bool,
+    actuators: int,
     mix_c: np.ndarray,
+    px_c: np.ndarray,
+    px_s: np.ndarray,
     hover: float,
     p: np.ndarray,
     x: np.ndarray,
@@ -154,14 +161,16 @@ def fly_run(
     ws: np.ndarray,
     next_rec: np.ndarray,
 ) -> None:
-    """Fly one run (``offboard.harness.batched.simulate`` for one of its runs): ``ref`` / ``law_ref`` (ticks, 28) the
-    reference rows for the figures and for the law (a shaped reference for ``zv`` / ``zvd``, else the same array),
-    ``flat`` the controller's nominal flat constants (l, g, c), ``lag_tau`` the nominal motor time constant (s), the
-    state ``x`` (18,) flown in place, the records (``rec_*``: per kind from ``rec_start[kind]``, sampling steps,
-    times, noise, values filled as sampled) and the filter's events ``ev`` (tick, slot, code) with ``pay``; the
-    figures into ``fig`` (``FIG_*``), every ``log_every``-th tick (and the last) into ``log_x`` / ``log_e`` (0:
-    none). ``ws`` (``WS_ROWS``, 24) and ``next_rec`` (4,) are the caller's scratch (this kernel allocates nothing:
-    it runs without numba's reference counting, ``layout.pure_kernel``)."""
+    """Fly one run (``offboard.harness.batched.simulate`` for one of its runs, ``sim.run`` for the attitude-level
+    law): ``ref`` / ``law_ref`` (ticks, 28) the reference rows for the figures and for the law (a shaped reference
+    for ``zv`` / ``zvd``, else the same array), ``law_code`` a ``laws.LAW_*`` or ``attitude_law.LAW_SMC_ATTITUDE``,
+    ``flat`` the controller's nominal flat constants (l, g, c), ``lag_tau`` the nominal motor time constant (s),
+    ``actuators`` an ``inputs.ACT_*`` (the mixer's constants ``mix_c``; PX4's attitude path's ``px_c`` and its
+    state ``px_s``, flown in place), the state ``x`` (18,) flown in place, the records (``rec_*``: per kind from
+    ``rec_start[kind]``, sampling steps, times, noise, values filled as sampled) and the filter's events ``ev``
+    (tick, slot, code) with ``pay``; the figures into ``fig`` (``FIG_*``), every ``log_every``-th tick (and the
+    last) into ``log_x`` / ``log_e`` (0: none). ``ws`` (``WS_ROWS``, 24) and ``next_rec`` (4,) are the caller's
+    scratch (this kernel allocates nothing: it runs without numba's reference counting, ``layout.pure_kernel``)."""
     n_ticks = ref.shape[0]
     kl, kg, kc = flat[0], flat[1], flat[2]
     for r in range(ws.shape[0]):
@@ -170,7 +179,7 @@ def fly_run(
     work = ws[0:5, 0:18]  # RK4's stages
     deriv = ws[5, 0:18]
     u = ws[6, 0:13]
-    uc = ws[7, 0:4]
+    uc = ws[7, 0 : cal.COMMAND_SIZE]
     dist = ws[8, 0:9]
     truth = ws[9, 0:EST_SIZE]
     est = ws[10, 0:EST_SIZE]
@@ -198,9 +207,12 @@ def fly_run(
         else:
             for i in range(EST_SIZE):
                 est[i] = truth[i]
-        sat = claws.law_step(law_code, law_c, law_K, law_mem, t, 0.0 if tick == 0 else dt, est, law_ref[tick], uc)
+        if law_code == cal.LAW_SMC_ATTITUDE:  # the attitude setpoint besides the torques it expects
+            sat = cal.attitude_step(law_c, law_mem, t, est, law_ref[tick], uc)
+        else:
+            sat = claws.law_step(law_code, law_c, law_K, law_mem, t, 0.0 if tick == 0 else dt, est, law_ref[tick], uc)
         if use_kf:  # offboard.harness.sim.run(command_lag=True): the command through the nominal motor lag
-            if not use_mixer or tick == 0 or lag_tau == 0.0:
+            if actuators == ACT_IDEAL or tick == 0 or lag_tau == 0.0:
                 lagged[0], lagged[1], lagged[2] = uc[0], uc[1], uc[2]
             else:
                 step_dt = t - t_prev
@@ -236,14 +248,18 @@ def fly_run(
             log_e[li, 0], log_e[li, 1], log_e[li, 2], log_e[li, 3] = alpha, e0, e1, e2
             log_e[li, 4], log_e[li, 5] = ex, ey
             li += 1
-        if use_mixer:
+        if actuators == ACT_MIXER:
             cp.mixer_allocate(mix_c, u[0], u[1], u[2], u[3], cmd)
             cp.mixer_wrench(mix_c, f_mot, u)
+        elif actuators == ACT_PX4_ATTITUDE:  # (the motors' wrench now would only feed sim.run's logged tension)
+            cpx.px4_set_setpoint(px_c, px_s, uc[cal.CMD_PHI_SP], uc[cal.CMD_THETA_SP], uc[cal.CMD_PSI_SP], uc[0])
         if tick == n_ticks - 1:
             break
         for _ in range(substeps):
-            if use_mixer:
+            if actuators == ACT_MIXER:
                 cp.mixer_step(mix_c, f_mot, cmd, u)
+            elif actuators == ACT_PX4_ATTITUDE:  # from the state before the step, as Px4AttitudePath.step(x)
+                cpx.px4_step(px_c, px_s, x, u)
             cp.apply_drag(u, x, dist[0:3], dist[6:9], p)
             cp.rk4_step(x, u, p, plant_dt, work)
             tens = cp.tension(x, u, p)
@@ -263,34 +279,16 @@ def fly_run(
 
 
 # ---- the Python side -----------------------------------------------------------------------------------------------
-def reference_rows(reference: Any, shaper: Any, n_ticks: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """The reference sampled at every tick (ticks, 28), and the law's (shaped by ``shaper`` when given, once per
-    tick in order, as the batched path shapes it; else the same array)."""
-    rows = np.empty((n_ticks, REF_SIZE))
-    law = np.empty((n_ticks, REF_SIZE)) if shaper is not None else rows
-    for tick in range(n_ticks):
-        t = tick * dt
-        s = reference.sample(t)
-        rows[tick] = (*s.fx, *s.fy, *s.z, *s.psi)
-        if shaper is not None:
-            law[tick] = np.concatenate([np.asarray(v, dtype=float) for v in shaper(t, s.fx, s.fy, s.z, s.psi)])
-    return rows, law
-
-
-def _records(sched: Any) -> tuple[np.ndarray, ...]:
-    """A run's schedule (``offboard.harness.batched_sensors.RunSchedule``) as flat arrays: the first record of each
-    kind (5,), sampling steps, times, noise (n, 6) and values to fill (n, 6), the events and their payloads."""
-    counts = [len(s) for s in sched.steps]
-    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    n = int(start[-1])
-    steps = np.concatenate(sched.steps).astype(np.int64) if n else np.zeros(0, dtype=np.int64)
-    times = np.concatenate(sched.times).astype(float) if n else np.zeros(0)
-    noise = np.zeros((n, 6))
-    for kind, e in enumerate(sched.noise):
-        if len(e):
-            noise[start[kind] : start[kind + 1], : e.shape[1]] = e
-    ev = np.ascontiguousarray(sched.events, dtype=np.int64).reshape(-1, 3)
-    return start, steps, times, noise, np.full((n, 6), np.nan), ev, np.asarray(sched.payload, dtype=float)
+def _sensor_arrays(
+    sched: Any, kf_c: np.ndarray
+) -> tuple[tuple[np.ndarray, ...], np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """A run's records and events (``inputs.records``; none without a schedule), the accelerometer's bias (3,) and
+    a fresh filter state for the filter's constants ``kf_c`` (placeholders without a schedule)."""
+    if sched is None:
+        no_i, no_f = np.zeros(5, dtype=np.int64), np.zeros((0, 6))
+        recs = (no_i, no_i[:0], np.zeros(0), no_f, no_f.copy(), np.zeros((0, 3), dtype=np.int64), np.zeros(0))
+        return recs, np.zeros(3), (np.zeros(1), np.zeros(1, dtype=np.int64))
+    return cin.records(sched), np.asarray(sched.bias, dtype=float), ckf.kf_new_state(kf_c)
 
 
 def simulate(
@@ -312,19 +310,20 @@ def simulate(
 ) -> dict[str, Any]:
     """``offboard.harness.batched.simulate`` with the compiled kernels (the same arguments and log: ``t``, ``x``
     (ticks, 18, B), the ``LOG_NAMES`` columns (ticks, B), ``saturated`` (s), ``slack_steps``, ``min_tension``, the
-    figures ``fig`` (B, ``FIG_SIZE``) and ``n_ticks``); the runs are flown one after another. ``rows``: the
-    reference rows of :func:`reference_rows` when the caller has them (a sweep samples its one reference once)."""
+    figures ``fig`` (B, ``FIG_SIZE``) and ``n_ticks``); the runs are flown one after another. ``law``: a row of
+    ``inputs.COMPILED_LAWS``; ``smc-attitude`` flies with ``actuators = "px4-attitude"`` (``sim.run``'s PX4 attitude
+    path), designed as the sweep designs it, and the log adds ``allocator_saturated`` (s: PX4's allocator left some
+    torque unallocated; 0 with other actuators). ``rows``: the reference rows of ``inputs.reference_rows`` when the
+    caller has them (a sweep samples its one reference once)."""
     from estimators.filters.measured_kf import MeasuredTuning
     from estimators.model.flatness import flat_constants
-    from offboard.harness.batched import BATCHED_LAWS, batched_law
     from offboard.harness.compiled.schedule import schedule
     from offboard.harness.sim import plant_scenario
     from sim_bridge.plant import dynamics
 
-    if estimator not in ("truth", "kf") or actuators not in ("ideal", "mixer"):
-        raise ValueError("the compiled path flies estimator truth or kf, actuators ideal or mixer")
-    if law not in BATCHED_LAWS:
-        raise ValueError(f"the compiled path flies the laws {', '.join(BATCHED_LAWS)}, not {law!r}")
+    if estimator not in ("truth", "kf") or actuators not in cin.ACTUATORS:
+        raise ValueError(f"the compiled path flies estimator truth or kf, actuators {', '.join(cin.ACTUATORS)}")
+    cin.check_law(law, actuators)
     scs = [plant_scenario(s) for s in scenarios]
     B = len(scs)
     k = flat_constants(params.vehicle)
@@ -333,12 +332,11 @@ def simulate(
     dt = substeps * plant_dt
     n_ticks = math.floor(scs[0].duration / dt + 1e-9) + 1
     if rows is None:
-        _, shaper = batched_law(law, params.vehicle, 1) if law != "smc" else (None, None)
-        rows = reference_rows(scs[0].reference, shaper, n_ticks, dt)
+        rows = cin.reference_rows(scs[0].reference, cin.law_shaper(law, params.vehicle), n_ticks, dt)
     ref, law_ref = rows
     if ref.shape[0] != n_ticks:
         raise ValueError(f"reference rows for {ref.shape[0]} ticks, the runs have {n_ticks}")
-    code, law_c, law_K = claws.law_constants(law, params.vehicle, params)
+    code, law_c, law_K, memory = cin.law_arrays(law, params)
     arrival = getattr(scs[0], "arrival_time", None)
     residual_from = math.inf if arrival is None else arrival + 2.0
     keep = list(range(0, n_ticks, log_every)) if log_every > 0 else []
@@ -347,12 +345,12 @@ def simulate(
     nk = len(keep)
     log: dict[str, Any] = {"t": np.array(keep, dtype=float) * dt, "x": np.empty((nk, 18, B))}
     log.update({n: np.empty((nk, B)) for n in LOG_NAMES})
-    figs = np.empty((B, FIG_SIZE))
-    use_kf, use_mixer = estimator == "kf", actuators == "mixer"
+    figs, allocator_saturated = np.empty((B, FIG_SIZE)), np.zeros(B)
+    use_kf, act = estimator == "kf", cin.ACTUATORS[actuators]
     tuning = MeasuredTuning() if tuning is None else tuning
     delay = 0.012  # the filter's fusion horizon behind the tick (BatchedMeasuredKalman's default, as batched flies it)
     kf_c = ckf.kf_constants(params.vehicle, tuning, load_sensor=load_sensor, delay_s=delay, rate_hz=1.0 / dt)
-    empty_i, empty_f = np.zeros(5, dtype=np.int64), np.zeros(0)
+    sched = None
     for b in range(B):
         v = vehicles[b]
         if use_kf:
@@ -369,17 +367,13 @@ def simulate(
                 delay_s=delay,
                 fuse_gyro=tuning.fuse_gyro,
             )
-            start, steps, times, noise, vals, ev, pay = _records(sched)
-            bias = np.asarray(sched.bias, dtype=float)
-            kf_f, kf_n = ckf.kf_new_state(kf_c)
-        else:
-            start, steps, times, noise, vals = empty_i, empty_i[:0], empty_f, np.zeros((0, 6)), np.zeros((0, 6))
-            ev, pay, bias = np.zeros((0, 3), dtype=np.int64), empty_f, np.zeros(3)
-            kf_f, kf_n = np.zeros(1), np.zeros(1, dtype=np.int64)
+        recs, bias, (kf_f, kf_n) = _sensor_arrays(sched, kf_c)
         hover = dynamics.hover_input(dynamics.plant_params(v, "paper"))[0]
+        mix_c, px_c, px_s = cin.actuator_arrays(act, v, plant_dt, hover)
         x = np.array(scs[b].initial_state, dtype=float)
         log_x, log_e = np.empty((max(nk, 1), 18)), np.empty((max(nk, 1), 6))
         ws, next_rec = np.empty((WS_ROWS, EST_SIZE)), np.empty(4, dtype=np.int64)
+        start, steps, times, noise, vals, ev, pay = recs
         fly_run(
             ref,
             law_ref,
@@ -390,15 +384,17 @@ def simulate(
             code,
             law_c,
             law_K,
-            claws.law_memory(code, law_c),
+            memory.copy(),
             flat,
             params.vehicle.motor_time_constant,
             use_kf,
             kf_c,
             kf_f,
             kf_n,
-            use_mixer,
-            cp.mixer_constants(v, plant_dt),
+            act,
+            mix_c,
+            px_c,
+            px_s,
             hover,
             cp.plant_constants(v),
             x,
@@ -418,6 +414,8 @@ def simulate(
             ws,
             next_rec,
         )
+        if act == ACT_PX4_ATTITUDE:  # rate-loop periods, two plant steps each
+            allocator_saturated[b] = px_s[cpx.PS_N_SATURATED] * px_c[cpx.PX_RATE_DT]
         if nk:
             log["x"][:, :, b] = log_x[:nk]
             for i, n in enumerate(LOG_NAMES):
@@ -426,29 +424,22 @@ def simulate(
         saturated=figs[:, FIG_SATURATED].copy(),
         min_tension=figs[:, FIG_MIN_TENSION].copy(),
         slack_steps=figs[:, FIG_SLACK].astype(int),
+        allocator_saturated=allocator_saturated,
         fig=figs,
         n_ticks=n_ticks,
     )
     return log
 
 
-_REFERENCES: dict[tuple[Any, ...], tuple[np.ndarray, np.ndarray]] = {}
+def _flown_actuators(controller: str, nominal: Any, actuators: str) -> str:
+    """The actuators ``controller`` flies with in the sweep (``compare.controller_as_flown``: ``smc-attitude``
+    through PX4's attitude loops in place of the file's motors)."""
+    if controller != "smc-attitude":
+        return actuators
+    from offboard.harness.compare import controller_as_flown
+    from offboard.logs.runlog import SimConfig
 
-
-def _sweep_reference(config: Any, controller: str, scenario: Any, params: Any) -> tuple[np.ndarray, np.ndarray]:
-    """The sweep's one reference as rows (and the law's, shaped for ``zv`` / ``zvd``), sampled once per process for
-    a file's move and nominal vehicle: every run of every chunk flies the same reference (``sweep.scenario``), and
-    sampling its 13 001 ticks costs as much as flying 40 runs."""
-    from offboard.harness.batched import batched_law
-
-    key = (config.move_time_s, config.distance_m, config.hold_s, config.vehicle_file, controller)
-    if key not in _REFERENCES:
-        n_ticks = math.floor(scenario.duration / 0.001 + 1e-9) + 1
-        _, shaper = batched_law(controller, params.vehicle, 1) if controller != "smc" else (None, None)
-        if len(_REFERENCES) > 16:
-            _REFERENCES.clear()
-        _REFERENCES[key] = reference_rows(scenario.reference, shaper, n_ticks, 0.001)
-    return _REFERENCES[key]
+    return controller_as_flown(controller, nominal, SimConfig(actuators=actuators))[0].actuators
 
 
 def run_batch(config: Any, controller: str, runs: list[int]) -> list[dict[str, Any]]:
@@ -463,12 +454,13 @@ def run_batch(config: Any, controller: str, runs: list[int]) -> list[dict[str, A
     vehicles = [sweep.plant_vehicle(nominal, d) for d in draws]
     scs = [sweep.scenario(config, d) for d in draws]
     params = registry.smc_params(nominal)
-    kw: dict[str, Any] = {"estimator": "truth" if config.estimator == "truth" else "kf", "actuators": config.actuators}
+    kw: dict[str, Any] = {"estimator": "truth" if config.estimator == "truth" else "kf"}
+    kw["actuators"] = _flown_actuators(controller, nominal, config.actuators)
     if kw["estimator"] == "kf":
         kw.update(sensors=[sweep.sensor_preset(config, d) for d in draws], seeds=[int(d["sensor_seed"]) for d in draws])
         kw.update(tuning=registry.filter_tuning(controller))
     wall0 = time.perf_counter()
-    rows = _sweep_reference(config, controller, scs[0], params)
+    rows = cin.sweep_reference(config, controller, scs[0], params)
     log = simulate(scs, vehicles, params, log_every=0, law=controller, rows=rows, **kw)
     wall = time.perf_counter() - wall0
     fig = log["fig"]

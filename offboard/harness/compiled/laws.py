@@ -52,6 +52,7 @@ from offboard.harness.compiled.layout import (
     REF_PSI,
     REF_Z,
     inline_kernel,
+    pack_constants,
     pure_kernel,
 )
 
@@ -110,16 +111,6 @@ _SIZES = {LAW_SMC: SMC_SIZE, LAW_CASCADE: CASCADE_SIZE, LAW_SWING_FEEDBACK: SWIN
 
 
 # ---- Python side: the constants and the initial memory ------------------------------------------------------------
-def _pack(size: int, values: dict[int, float]) -> np.ndarray:
-    """A constants vector of ``size`` floats from ``{index: value}``; every index given once."""
-    if sorted(values) != list(range(size)):
-        raise AssertionError(f"constants layout: indices {sorted(values)} are not 0..{size - 1}")
-    c = np.empty(size)
-    for i, v in values.items():
-        c[i] = float(v)
-    return c
-
-
 def _smc_constants(params: smc.ControllerParams) -> np.ndarray:
     """``smc.step``'s constants for ``params`` (the nominal vehicle's law), as ``batched.smc_step`` reads them."""
     v = params.vehicle
@@ -138,7 +129,7 @@ def _smc_constants(params: smc.ControllerParams) -> np.ndarray:
     values.update({S_LAG: params.actuation_lag_s, S_THRUST_MIN: params.thrust_min, S_THRUST_MAX: params.thrust_max})
     values.update({S_TP_MAX: tp, S_TT_MAX: tt, S_TS_MAX: ts, S_SHARED: params.shared_roll_pitch})
     values.update({S_F_MAX: f_max, S_DF_HOVER: df_hover})
-    return _pack(SMC_SIZE, values)
+    return pack_constants(SMC_SIZE, values)
 
 
 def _cascade_constants(step: CascadeStep) -> np.ndarray:
@@ -155,11 +146,11 @@ def _cascade_constants(step: CascadeStep) -> np.ndarray:
     values.update({C_ACC_GAIN: step.acc_gain, C_G: step.g, C_THRUST_MAX: step.thrust_max, C_TP: tp, C_TT: tt})
     values.update({C_TS: ts, C_IX: Ix, C_IY: Iy, C_IZ: Iz})
     if not isinstance(step, SwingFeedbackStep):
-        return _pack(CASCADE_SIZE, values)
+        return pack_constants(CASCADE_SIZE, values)
     # the applet's filter constant, computed as the batched law computes it (a Python float, the same bits)
     values.update({C_VEL_P: step.vel_p, C_WP_POS_P: step.wp_pos_p, C_REST_RC: step.rest_tc / (2.0 * math.pi)})
     values.update({C_DIST_MAX: step.dist_max})
-    return _pack(SWING_SIZE, values)
+    return pack_constants(SWING_SIZE, values)
 
 
 def _lqr_constants(step: LqrStep) -> np.ndarray:
@@ -170,7 +161,7 @@ def _lqr_constants(step: LqrStep) -> np.ndarray:
     values = {BASE_HOVER: step.hover, Q_L: k.l, Q_G: k.g, Q_C: k.c, Q_W2: k.omega2, Q_MT: step.vehicle.total_mass}
     values.update({Q_IX: Ix, Q_IY: Iy, Q_IZ: Iz, Q_THRUST_MAX: step.thrust_max, Q_TP: tp, Q_TT: tt, Q_TS: ts})
     values.update({Q_LAG: step.lag_s})
-    return _pack(LQR_SIZE, values)
+    return pack_constants(LQR_SIZE, values)
 
 
 def law_constants(law: str, vehicle: Vehicle, params: smc.ControllerParams) -> tuple[int, np.ndarray, np.ndarray]:
@@ -262,9 +253,10 @@ def _wrap(a: float) -> float:
 
 
 @inline_kernel
-def _estimate_is_finite(est: np.ndarray) -> bool:
-    """The baselines' screen (``BatchedBaseline``): the sum of the two flat chains and the named scalars, summed as
-    numpy and Python sum them (an overflowing sum is refused too), is finite."""
+def estimate_is_finite(est: np.ndarray) -> bool:
+    """The baselines' screen (``BatchedBaseline``) and the attitude-level law's (``ControlState.is_finite``): the sum
+    of the two flat chains and the named scalars, summed as numpy and Python sum them (an overflowing sum is refused
+    too), is finite."""
     sx = est[EST_FX]
     sy = est[EST_FY]
     for i in range(1, 6):
@@ -677,7 +669,7 @@ def law_step(
     updated in place. Returns ``saturated``, as the batched law's second result."""
     if code == LAW_SMC:
         return smc_step(c, mem, dt, est, ref, u_out)
-    if not _estimate_is_finite(est):  # the baselines: hover, memory kept
+    if not estimate_is_finite(est):  # the baselines: hover, memory kept
         u_out[0], u_out[1], u_out[2], u_out[3] = c[BASE_HOVER], 0.0, 0.0, 0.0
         return False
     t_last = mem[B_T_LAST]

@@ -1,4 +1,7 @@
-"""What every compiled kernel shares: the JIT decorator and the layouts of the vectors passed between kernels.
+"""What every compiled kernel shares: the JIT decorators, the layouts of the vectors passed between kernels, the
+constants' packing, and Python's built-in ``min``, ``max`` and ``math.hypot`` for the kernels that mirror scalar
+Python code (``py_min``, ``py_max``, ``py_hypot``: their NaN handling and last bits are Python's, not numpy's or
+libm's).
 
 Kernels are numba ``njit`` functions with ``error_model="numpy"`` (a division by zero gives inf or NaN, as numpy
 does, instead of raising: the kernels run inside a simulated run, which reports a non-finite state as diverged)
@@ -16,9 +19,11 @@ The reference row (``REF_SIZE`` floats): ``offboard.control.reference.FlatSample
 from __future__ import annotations
 
 import hashlib
+import math
 from pathlib import Path
 
 import numba
+import numpy as np
 
 _PACKAGE = Path(__file__).resolve().parent
 
@@ -69,6 +74,89 @@ _NO_NRT = {"_nrt": False} if hasattr(numba.core.cpu.CPUTargetOptions, "_nrt") el
 #: sequence costs 150 instead of 340 ns per control tick (``tests/test_compiled_kf.py``) and compiles in 18 instead
 #: of 32 s. Callable from kernels that count references and from Python alike.
 pure_kernel = numba.njit(cache=True, error_model="numpy", nogil=True, **_NO_NRT)
+
+
+def pack_constants(size: int, values: dict[int, float]) -> np.ndarray:
+    """A kernel's constants vector of ``size`` floats from ``{index: value}``; every index given once (a layout whose
+    named indices overlap or leave a gap fails here, not as a wrong constant inside a run)."""
+    if sorted(values) != list(range(size)):
+        raise AssertionError(f"constants layout: indices {sorted(values)} are not 0..{size - 1}")
+    c = np.empty(size)
+    for i, v in values.items():
+        c[i] = float(v)
+    return c
+
+
+@inline_kernel
+def py_min(a: float, b: float) -> float:
+    """Python's built-in ``min(a, b)`` of two floats: ``b`` only when ``b < a`` (so a NaN ``a`` is kept, a NaN ``b``
+    is not taken), as the scalar path's ``min`` gives it."""
+    return b if b < a else a
+
+
+@inline_kernel
+def py_max(a: float, b: float) -> float:
+    """Python's built-in ``max(a, b)`` of two floats: ``b`` only when ``b > a``."""
+    return b if b > a else a
+
+
+#: Veltkamp's constant 2^27 + 1: splits a double into two halves whose products are exact
+_T27 = 134217729.0
+
+
+@inline_kernel
+def _split(x: float) -> tuple[float, float]:
+    """``x`` as ``hi + lo`` with 26-bit halves (Veltkamp-Dekker)."""
+    t = x * _T27
+    hi = t - (t - x)
+    return hi, x - hi
+
+
+@inline_kernel
+def _fast_sum(csum: float, x: float) -> tuple[float, float]:
+    """``csum + x`` and its rounding error (Neumaier, ``|csum| >= |x|``)."""
+    total = csum + x
+    return total, (csum - total) + x
+
+
+@pure_kernel
+def py_hypot(a: float, b: float) -> float:
+    """CPython 3.11's ``math.hypot(a, b)`` (``Modules/mathmodule.c``, ``vector_norm``): the sum of squares of the
+    scaled coordinates in double-double arithmetic (exact squares by Veltkamp-Dekker splitting, compensated sums), its
+    square root with one differential correction. numba's ``math.hypot`` is libm's, which differs from it in the last
+    bit for about one argument pair in a thousand (``tests/test_compiled_attitude.py``)."""
+    a, b = abs(a), abs(b)
+    m = b if b > a else a
+    if math.isinf(m):
+        return m
+    if a != a or b != b:
+        return math.nan
+    if m == 0.0:
+        return m
+    _, max_e = math.frexp(m)
+    if max_e < -1023:  # subnormal: the scale 2^-max_e would overflow; divided by the largest instead
+        csum, e1 = _fast_sum(1.0, (a / m) * (a / m))
+        csum, e2 = _fast_sum(csum, (b / m) * (b / m))
+        return m * math.sqrt(csum - 1.0 + (0.0 + e1 + e2))
+    scale = math.ldexp(1.0, -max_e)
+    csum, frac1, frac2, frac3 = 1.0, 0.0, 0.0, 0.0
+    for v in (a, b):
+        hi, lo = _split(v * scale)  # lossless scaling into [0.5, 1), then exact squares
+        csum, e = _fast_sum(csum, hi * hi)
+        frac1 += e
+        csum, e = _fast_sum(csum, 2.0 * hi * lo)
+        frac2 += e
+        frac3 += lo * lo
+    h = math.sqrt(csum - 1.0 + (frac1 + frac2 + frac3))
+    hi, lo = _split(h)  # the differential correction: h^2 taken from the sum exactly
+    csum, e = _fast_sum(csum, -hi * hi)
+    frac1 += e
+    csum, e = _fast_sum(csum, -2.0 * hi * lo)
+    frac2 += e
+    csum, e = _fast_sum(csum, -lo * lo)
+    frac3 += e
+    x = csum - 1.0 + (frac1 + frac2 + frac3)
+    return (h + x / (2.0 * h)) / scale
 
 
 # ---- the estimate (ControlState) ------------------------------------------------------------------------------
