@@ -154,3 +154,10 @@ def test_smc_attitude_is_compiled_and_falls_back_to_the_scalar_path_in_the_batch
         engine.simulate([], [], registry.smc_params(V), law="smc-attitude", actuators="mixer")
     with pytest.raises(ValueError, match="'smc' with actuators ideal or mixer"):
         engine.simulate([], [], registry.smc_params(V), law="smc", actuators="px4-attitude")
+
+
+def test_warm_up_loads_the_compiled_engine_only_for_its_rows(tmp_path: Path) -> None:
+    """``slung sweep`` loads (or compiles) the kernels in its own process before the Dask workers start: a run of
+    each compiled row; nothing for an engine that is not compiled."""
+    assert sweep.warm_up(sweep.load_config(_short_file(tmp_path, engine="batched")), ["smc", "lqr"]) == 0.0
+    assert sweep.warm_up(sweep.load_config(_short_file(tmp_path)), ["smc", "lqr"]) > 0.0

@@ -111,6 +111,13 @@ def execute(
     size = {c: chunk if sweep.engine_for(config, c) != "scalar" else min(chunk, 10) for c in controllers}
     tasks = [(c, rs[i : i + size[c]]) for c, rs in todo for i in range(0, len(rs), size[c])]
     n_todo = sum(len(rs) for _, rs in tasks)
+    if n_todo and any(sweep.engine_for(config, c) == "compiled" for c, _ in tasks):
+        if progress:
+            print(
+                "loading the compiled engine (compiled once per machine: a first sweep waits about a minute)",
+                file=sys.stderr,
+            )
+        sweep.warm_up(config, list(dict.fromkeys(c for c, _ in tasks)))
     baseline = sweep.single_run_speed(config) if n_todo else None
     wall0 = time.perf_counter()
     sim_s = 0.0
