@@ -7,14 +7,13 @@ bit on this machine), and ``slung sweep --engine compiled`` writes the scalar en
 
 from __future__ import annotations
 
-import csv
 import math
-import re
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from sweep_helpers import assert_engines_write_the_same_table, short_file
 
 from estimators.model.control_state import ControlState
 from estimators.model.vehicle import Vehicle
@@ -26,23 +25,15 @@ from offboard.harness.compiled import attitude_law as cal
 from offboard.harness.compiled import engine
 from offboard.harness.compiled import px4_loops as cpx
 from offboard.harness.compiled.layout import EST_SIZE, REF_SIZE, py_hypot
-from offboard.harness.sweep_cli import execute
 from offboard.logs.runlog import SimConfig
 from sim_bridge.inner.px4_attitude_path import Px4AttitudePath
 
 V = Vehicle()
 
 
-def _short_file(tmp_path: Path, engine: str = "compiled", estimator: str = "kf", move: float = 1.0, hold: float = 0.5):
-    """The default distribution with a short move and hold, gusts early (as ``test_compiled_engine``'s)."""
-    text = sweep.DEFAULT_FILE.read_text(encoding="utf-8")
-    text = text.replace("move_time_s = 4.0", f"move_time_s = {move}").replace("hold_s = 8.0", f"hold_s = {hold}")
-    text = text.replace('estimator = "kf"', f'estimator = "{estimator}"')
-    text = re.sub(r'engine = "\w+"', f'engine = "{engine}"', text)
-    text = text.replace("gust_start_s = {low = 1.0, high = 5.0}", "gust_start_s = {low = 0.5, high = 2.0}")
-    p = tmp_path / "sweep.toml"
-    p.write_text(text, encoding="utf-8")
-    return p
+def _short_file(tmp_path: Path, estimator: str = "kf") -> Path:
+    """The default distribution, short (a 1 s move, 0.5 s hold), the compiled engine."""
+    return short_file(tmp_path, "compiled", estimator, 1.0, 0.5, gust_start=(0.5, 2.0))
 
 
 # ---- the parts, on random inputs ------------------------------------------------------------------------------------
@@ -191,17 +182,4 @@ def test_runs_through_px4s_attitude_loops_equal_the_scalar_sweeps(tmp_path: Path
 def test_compiled_sweep_gives_the_scalar_sweeps_table_for_smc_attitude(tmp_path: Path) -> None:
     """``slung sweep`` with the compiled engine flies ``smc-attitude`` itself and writes the scalar engine's table:
     the same verdicts, the same figures to 1e-9."""
-    tables = {}
-    for eng in ("scalar", "compiled"):
-        (tmp_path / eng).mkdir()
-        f = _short_file(tmp_path / eng, engine=eng, move=1.0, hold=2.2)
-        s = execute(3, ["smc-attitude"], tmp_path / eng / "out", file=str(f), workers=0, figures=False, progress=False)
-        assert s["engine_by_controller"] == {"smc-attitude": eng}
-        with open(tmp_path / eng / "out" / "results.csv", encoding="utf-8") as fh:
-            tables[eng] = list(csv.DictReader(fh))
-    assert len(tables["scalar"]) == len(tables["compiled"]) == 3
-    for a, b in zip(tables["scalar"], tables["compiled"]):
-        for k in ("run", "success", "failure", "completed", "slack_steps", "sim_s"):
-            assert a[k] == b[k], k
-        for k in ("peak_swing_rad", "residual_swing_rad", "tracking_rms_m", "final_error_m", "max_estimate_error_m"):
-            assert abs(float(a[k]) - float(b[k])) <= 1e-9, k  # (a NaN fails: every figure exists here)
+    assert_engines_write_the_same_table(tmp_path, "smc-attitude", ("scalar", "compiled"))

@@ -5,13 +5,12 @@ table. (The component kernels have their own tests: ``test_compiled_plant``, ``_
 
 from __future__ import annotations
 
-import csv
-import re
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from sweep_helpers import assert_engines_write_the_same_table, short_file
 
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc
@@ -25,15 +24,8 @@ V = Vehicle()
 
 
 def _short_file(tmp_path: Path, engine: str = "compiled", estimator: str = "kf", move: float = 1.0, hold: float = 0.5):
-    """The default distribution with a short move and hold (cheap runs, the same parameters)."""
-    text = sweep.DEFAULT_FILE.read_text(encoding="utf-8")
-    text = text.replace("move_time_s = 4.0", f"move_time_s = {move}").replace("hold_s = 8.0", f"hold_s = {hold}")
-    text = text.replace('estimator = "kf"', f'estimator = "{estimator}"')
-    text = re.sub(r'engine = "\w+"', f'engine = "{engine}"', text)
-    text = text.replace("gust_start_s = {low = 1.0, high = 5.0}", "gust_start_s = {low = 0.5, high = 2.0}")
-    p = tmp_path / "sweep.toml"
-    p.write_text(text, encoding="utf-8")
-    return p
+    """The default distribution, short, the compiled engine and the filter unless told otherwise."""
+    return short_file(tmp_path, engine, estimator, move, hold, gust_start=(0.5, 2.0))
 
 
 def _drawn(cfg: sweep.SweepConfig, n: int = 3) -> tuple[list, list, list, list[int]]:
@@ -108,25 +100,7 @@ def test_runs_with_the_filter_and_the_mixer_equal_the_scalar_path(tmp_path: Path
 def test_compiled_sweep_gives_the_scalar_sweeps_table(tmp_path: Path, controller: str) -> None:
     """``slung sweep`` with the compiled engine writes the scalar engine's table: the same verdicts, the same
     figures to 1e-9."""
-    tables = {}
-    for eng in ("scalar", "compiled"):
-        (tmp_path / eng).mkdir()
-        f = _short_file(tmp_path / eng, engine=eng, move=1.0, hold=2.2)
-        s = execute(3, [controller], tmp_path / eng / "out", file=str(f), workers=0, figures=False, progress=False)
-        assert s["engine_by_controller"] == {controller: eng}
-        with open(tmp_path / eng / "out" / "results.csv", encoding="utf-8") as fh:
-            tables[eng] = list(csv.DictReader(fh))
-    assert len(tables["scalar"]) == len(tables["compiled"]) == 3
-    for a, b in zip(tables["scalar"], tables["compiled"]):
-        assert (a["run"], a["success"], a["failure"], a["completed"]) == (
-            b["run"],
-            b["success"],
-            b["failure"],
-            b["completed"],
-        )
-        for k in ("peak_swing_rad", "residual_swing_rad", "tracking_rms_m", "final_error_m", "max_estimate_error_m"):
-            assert abs(float(a[k]) - float(b[k])) <= 1e-9, k  # (a NaN fails: every figure exists here)
-        assert a["sim_s"] == b["sim_s"]
+    assert_engines_write_the_same_table(tmp_path, controller, ("scalar", "compiled"))
 
 
 @pytest.mark.slow

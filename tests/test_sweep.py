@@ -3,14 +3,14 @@ same results as one process, and the file's errors are one-line UserErrors."""
 
 from __future__ import annotations
 
-import csv
 import json
 import math
-import re
 from pathlib import Path
 
 import numpy as np
 import pytest
+from sweep_helpers import assert_engines_write_the_same_table
+from sweep_helpers import short_file as _short_file
 
 from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle
@@ -22,20 +22,6 @@ from offboard.harness.sweep_cli import execute
 from offboard.logs.runlog import SimConfig
 
 V = Vehicle()
-
-
-def _short_file(
-    tmp_path: Path, engine: str = "scalar", estimator: str = "truth", move: float = 2.0, hold: float = 2.0
-) -> Path:
-    """The default distribution with a short move (default 2 s move, 2 s hold): cheap runs, same parameters."""
-    text = sweep.DEFAULT_FILE.read_text(encoding="utf-8")
-    text = text.replace("move_time_s = 4.0", f"move_time_s = {move}").replace("hold_s = 8.0", f"hold_s = {hold}")
-    text = text.replace('estimator = "kf"', f'estimator = "{estimator}"')
-    text = re.sub(r'engine = "\w+"', f'engine = "{engine}"', text)
-    text = text.replace("gust_start_s = {low = 1.0, high = 5.0}", "gust_start_s = {low = 0.5, high = 3.0}")
-    p = tmp_path / "sweep.toml"
-    p.write_text(text, encoding="utf-8")
-    return p
 
 
 def _drawn_runs(cfg: sweep.SweepConfig) -> tuple[list, list, list, list, list[int]]:
@@ -151,25 +137,7 @@ def test_batched_baselines_with_the_filter_equal_the_scalar_path(tmp_path: Path,
 def test_batched_sweep_gives_the_scalar_sweeps_table(tmp_path: Path, controller: str) -> None:
     """``slung sweep`` with the batched engine (filter, mixer) writes the scalar engine's table: the same verdicts,
     the same figures to 1e-9."""
-    tables = {}
-    for engine in ("scalar", "batched"):
-        (tmp_path / engine).mkdir()
-        f = _short_file(tmp_path / engine, engine=engine, estimator="kf", move=1.0, hold=2.2)
-        s = execute(3, [controller], tmp_path / engine / "out", file=str(f), workers=0, figures=False, progress=False)
-        assert s["engine_by_controller"] == {controller: engine}
-        with open(tmp_path / engine / "out" / "results.csv", encoding="utf-8") as fh:
-            tables[engine] = list(csv.DictReader(fh))
-    assert len(tables["scalar"]) == len(tables["batched"]) == 3
-    for a, b in zip(tables["scalar"], tables["batched"]):
-        assert (a["run"], a["success"], a["failure"], a["completed"]) == (
-            b["run"],
-            b["success"],
-            b["failure"],
-            b["completed"],
-        )
-        for k in ("peak_swing_rad", "residual_swing_rad", "tracking_rms_m", "final_error_m", "max_estimate_error_m"):
-            assert abs(float(a[k]) - float(b[k])) <= 1e-9, k  # (a NaN fails: every figure exists here)
-        assert a["sim_s"] == b["sim_s"]
+    assert_engines_write_the_same_table(tmp_path, controller, ("scalar", "batched"))
 
 
 def _table(out: Path) -> list[str]:
