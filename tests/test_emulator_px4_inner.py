@@ -132,11 +132,12 @@ def test_ekf_error_origin_offset_and_wander_are_seeded() -> None:
 
 
 def test_ekf_error_height_scatters_in_the_air_not_on_the_ground() -> None:
-    """PX4's EKF2 height: millimetres while landed, centimetres in the air (docs/emulator.md calibration); the white
-    height noise has its own generator, so the wandering error is the same draw with and without it."""
+    """``air_white_v_m``, a white noise on the reported height in the air only (px4-sih's until 6 Dec 2026, now off:
+    EKF2's height has none, docs/emulator.md "The height"): it has its own generator, so the wandering error is the
+    same draw with and without it, and on the ground it is off."""
     preset = EKF_PRESETS["px4-sih"]
-    assert preset is not None and preset.air_white_v_m > 0.0
-    spec = replace(preset, air_height_sigma_m=0.0)  # the fused height's noise: the next test
+    assert preset is not None and preset.air_white_v_m == 0.0
+    spec = replace(preset, air_height_sigma_m=0.0, air_white_v_m=0.05)  # the fused height's noise: the next test
     quiet = replace(spec, air_white_v_m=0.0)
 
     ground, air, air_quiet = _heights(spec, True), _heights(spec, False), _heights(quiet, False)
@@ -156,12 +157,21 @@ def _heights(s, on_ground: bool, n: int = 2000, seed: int = 3) -> np.ndarray:
 
 
 def test_ekf_error_fused_height_noise_wanders_in_the_air_only() -> None:
-    """px4-sih's ``air_height_sigma_m`` (the barometer EKF2 fuses in flight, SIH's white at 10 Hz): white on the
-    measurement, the estimator's filtering makes it a height error that wanders over about a second (PX4 SITL's
-    EKF2 in Hold: 0.056 m over 1.4 s); on the ground it is off and the draws are those without it."""
+    """``air_height_sigma_m``, a white noise on the fused height in the air (a barometer's; px4-sih's 4 Dec model:
+    0.1 m per 5 Hz sample with vertical gains 0.1 / 0.2, now off, docs/emulator.md "The height"): the estimator's
+    filtering makes it a height error that wanders over about a second; on the ground it is off and the draws are
+    those without it."""
     preset = EKF_PRESETS["px4-sih"]
-    assert preset is not None and preset.air_height_sigma_m == 0.1
-    spec = replace(preset, air_white_v_m=0.0)  # the reported height's white noise: the test above
+    assert preset is not None and preset.air_height_sigma_m == 0.0
+    spec = replace(  # the 4 Dec vertical model, the accelerometer's noise (the next test) quiet
+        preset,
+        air_white_v_m=0.0,
+        air_height_sigma_m=0.1,
+        air_accel_sigma_v_m_s2=0.0,
+        height_hz=0.0,
+        gain_p=(preset.gain_p[0], 0.1),
+        gain_v=(preset.gain_v[0], 0.2),
+    )
     quiet = replace(spec, air_height_sigma_m=0.0)
     assert np.array_equal(_heights(spec, True, 20000), _heights(quiet, True, 20000))
     air, air_quiet = _heights(spec, False, 20000), _heights(quiet, False, 20000)
@@ -170,6 +180,66 @@ def test_ekf_error_fused_height_noise_wanders_in_the_air_only() -> None:
     r = fused - fused.mean()
     lag = 50  # 0.5 s: far beyond one GPS sample (0.2 s), so the correlation is the filter's, not the noise's
     assert float(np.corrcoef(r[:-lag], r[lag:])[0, 1]) > 0.4
+
+
+def test_ekf_error_height_error_is_the_wandering_vertical_velocity_error_it_integrates() -> None:
+    """px4-sih's height (docs/emulator.md, "The height"): EKF2 integrates SIH's noisy accelerometer (vertical 1.4 m/s^2
+    per 250 Hz sample in flight) and corrects with the rangefinder at 50 Hz, so its height error is the integral of
+    a wandering vertical velocity error less a position correction of about 1.6 /s (its ULog in Hold: err' = 0.94
+    verr - 1.61 err; 0.057 m and 0.085 m/s, correlated over 1.5 and 1.2 s), smooth (no white noise: PX4's height
+    error has 1-2 mm above 2 Hz), and on the ground, with the noise off, millimetres. The noise has its own
+    generator: the horizontal error is the same draw with and without it."""
+    spec = EKF_PRESETS["px4-sih"]
+    assert spec is not None and spec.air_accel_sigma_v_m_s2 == 1.4 and spec.height_hz == 50.0
+    dt = 0.01
+
+    def run(s, on_ground: bool, n: int = 10000) -> tuple[np.ndarray, np.ndarray]:
+        e = EkfError(s, np.random.default_rng(11))
+        pos, vel = [], []
+        for _ in range(n):  # 100 s at 100 Hz, at rest 2 m up
+            e.step(dt, (0.0, 0.0, 2.0), on_ground)
+            pos.append(e.position_error())
+            vel.append(e.velocity_error())
+        return np.array(pos), np.array(vel)
+
+    pos, vel = run(spec, False)
+    ez, vz = pos[:, 2], vel[:, 2]
+    assert 0.03 < float(np.std(ez)) < 0.07 and 0.06 < float(np.std(vz)) < 0.12
+    # the height follows the velocity error: de/dt = c1 verr + c2 err with c1 = 1 (it is its integral) and c2 the
+    # fused correction's rate, -ln(1 - gain_p) height_hz; a noise on the measurement or the report would break both
+    de = np.diff(ez) / dt
+    c1, c2 = np.linalg.lstsq(np.column_stack([vz[1:], ez[:-1]]), de, rcond=None)[0]
+    assert c1 == pytest.approx(1.0, abs=0.05)
+    assert -c2 == pytest.approx(-math.log(1.0 - spec.gain_p[1]) * spec.height_hz, rel=0.15)
+    assert float(np.std(np.diff(ez))) < 0.003  # smooth: no white noise on the height
+    for x, lo, hi in ((ez, 0.8, 3.5), (vz, 0.6, 2.5)):  # correlation times, s (PX4: 1.5 and 1.2)
+        r = x - x.mean()
+        ac = np.array([float(np.dot(r[:-k], r[k:])) for k in range(1, 400)]) / float(np.dot(r, r))
+        assert lo < (int(np.argmax(ac < math.exp(-1.0))) + 1) * dt < hi
+    ground_pos, ground_vel = run(spec, True, 2000)
+    assert float(np.std(ground_pos[:, 2])) < 0.01 and float(np.std(ground_vel[:, 2])) < 0.01
+    quiet_pos, _ = run(replace(spec, air_accel_sigma_v_m_s2=0.0), False, 2000)
+    assert np.array_equal(pos[:2000, :2], quiet_pos[:, :2]) and float(np.std(quiet_pos[:, 2])) < 0.01
+
+
+def test_ekf_error_fuses_each_direction_with_its_own_delay() -> None:
+    """gps_delay_s is per direction: with the truth moving at 1 m/s along x and z and no noise anywhere, the direction
+    fused without delay keeps no error, the delayed one lags (its error pulls back toward where the truth was)."""
+    quiet = replace(
+        EKF_PRESETS["px4-sih"],  # type: ignore[arg-type]
+        gps_sigma_m=(0.0, 0.0),
+        air_gps_sigma_h_m=0.0,
+        accel_sigma_m_s2=0.0,
+        air_accel_sigma_v_m_s2=0.0,
+        tilt_sigma_rad=(0.0, 0.0),
+    )
+    for delays, lagging in (((0.0, 0.3), 2), ((0.3, 0.0), 0)):
+        e = EkfError(replace(quiet, gps_delay_s=delays), np.random.default_rng(2))
+        for k in range(1, 1001):  # 10 s, the truth at (t, 0, 2 + t) m
+            t = 0.01 * k
+            e.step(0.01, (t, 0.0, 2.0 + t), False)
+        err = e.position_error()
+        assert abs(err[2 - lagging]) < 1e-9 and err[lagging] < -0.05
 
 
 def test_ekf_error_horizontal_gps_noise_is_larger_in_the_air() -> None:
@@ -246,13 +316,16 @@ def test_ekf_error_tilt_leaks_gravity_into_the_velocity_in_the_world_axis_the_he
     """``tilt_leak`` 1: a held roll / pitch estimate error ``d`` makes the velocity error grow as ``g d`` (EKF2
     rotates the measured specific force with its own attitude), in the world axis the heading turns it to (model
     frame NWU: pitch error (nose down, +) leaks along the nose, roll error (right side down, +) to the right); 0:
-    none. The GPS is made far away in time, so the first second is the leak alone."""
+    none. The GPS (the height with it) is made far away in time and the vertical accelerometer quiet, so the first
+    second is the leak alone."""
     spec = replace(
         EKF_PRESETS["px4-sih"],  # type: ignore[arg-type]
         tilt_sigma_rad=(0.0, 0.0),
         accel_sigma_m_s2=0.0,
         gps_hz=1e-3,
         tilt_leak=1.0,
+        height_hz=0.0,
+        air_accel_sigma_v_m_s2=0.0,
     )
     g, d = 9.80665, 0.02
 
