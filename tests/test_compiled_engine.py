@@ -130,6 +130,22 @@ def test_smc_attitude_is_compiled_and_falls_back_to_the_scalar_path_in_the_batch
         engine.simulate([], [], registry.smc_params(V), law="smc", actuators="px4-attitude")
 
 
+def test_a_file_with_actuators_the_fast_engines_do_not_model_is_flown_by_the_scalar_path(tmp_path: Path) -> None:
+    """``actuators = "px4"`` (PX4's allocator behind the torque-level law) is the scalar path's alone: with the
+    compiled or batched engine in the file the sweep still flies, every row by the scalar path, and says so in its
+    summary, where a fast engine would have raised in the middle of the sweep."""
+    for eng in ("compiled", "batched"):
+        (tmp_path / eng).mkdir()
+        f = _short_file(tmp_path / eng, engine=eng)
+        text = f.read_text(encoding="utf-8").replace('actuators = "mixer"', 'actuators = "px4"')
+        f.write_text(text, encoding="utf-8")
+        cfg = sweep.load_config(f)
+        assert cfg.actuators == "px4"
+        assert {sweep.engine_for(cfg, c) for c in ("smc", "cascade", "smc-attitude")} == {"scalar"}
+        s = execute(1, ["smc"], tmp_path / eng / "out", file=str(f), workers=0, figures=False, progress=False)
+        assert s["engine_by_controller"] == {"smc": "scalar"} and s["controllers"]["smc"]["runs"] == 1
+
+
 def test_warm_up_loads_the_compiled_engine_only_for_its_rows(tmp_path: Path) -> None:
     """``slung sweep`` loads (or compiles) the kernels in its own process before the Dask workers start: a run of
     each compiled row; nothing for an engine that is not compiled."""

@@ -441,7 +441,12 @@ def warm_up(config: SweepConfig, controllers: list[str]) -> float:
 def engine_for(config: SweepConfig, controller: str) -> str:
     """The path that flies ``controller``'s runs: the file's engine, except that the batched path flies the rows of
     ``offboard.harness.batched.BATCHED_LAWS`` only (``smc-attitude``, through PX4's attitude loops, falls back to the
-    scalar path) and the compiled path those of ``offboard.harness.compiled.inputs.COMPILED_LAWS`` (every row)."""
+    scalar path) and the compiled path those of ``offboard.harness.compiled.inputs.COMPILED_LAWS`` (every row).
+    Both model the filter ``kf`` or the true state, and the ideal actuators or the mixer (the compiled path also PX4's
+    attitude loops, which ``smc-attitude`` flies); a file asking for others (``actuators = "px4"``, PX4's allocator
+    behind a torque-level law; the ``kf-torque`` filter) is flown by the scalar path, which models them all."""
+    if config.estimator not in ("truth", "kf") or config.actuators not in ("ideal", "mixer"):
+        return "scalar"
     if config.engine == "compiled":
         from offboard.harness.compiled.inputs import COMPILED_LAWS  # loads numba: only for the compiled engine
 

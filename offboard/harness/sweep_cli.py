@@ -111,6 +111,13 @@ def execute(
     size = {c: chunk if sweep.engine_for(config, c) != "scalar" else min(chunk, 10) for c in controllers}
     tasks = [(c, rs[i : i + size[c]]) for c, rs in todo for i in range(0, len(rs), size[c])]
     n_todo = sum(len(rs) for _, rs in tasks)
+    slow = [c for c, _ in todo if config.engine != "scalar" and sweep.engine_for(config, c) == "scalar"]
+    if n_todo and slow:  # said even without the progress bar: it is why the sweep is slow
+        print(
+            f"the {config.engine} engine does not fly {', '.join(slow)} with estimator {config.estimator}, actuators "
+            f"{config.actuators}: the scalar path flies them (about 7 simulated s per wall s per worker)",
+            file=sys.stderr,
+        )
     if n_todo and any(sweep.engine_for(config, c) == "compiled" for c, _ in tasks):
         if progress:
             print(
@@ -298,6 +305,17 @@ def summarize(table: list[dict[str, str]], controllers: list[str], config: sweep
     return out
 
 
+def _engines_flown(s: dict[str, Any]) -> str:
+    """The engines that flew the summary's rows: the file's, or which rows another flew (the scalar path for
+    estimators and actuators the fast engines do not model, ``sweep.engine_for``)."""
+    used = sorted(set(s["engine_by_controller"].values()))
+    if used == [s["engine"]]:
+        return f"{s['engine']} engine"
+    if len(used) == 1:
+        return f"{used[0]} engine, not the file's {s['engine']}"
+    return "engines " + ", ".join(f"{c}: {e}" for c, e in s["engine_by_controller"].items())
+
+
 def format_summary(s: dict[str, Any]) -> str:
     lines = [f"{'controller':<15}{'runs':>7}{'success':>10}{'worst resid rad':>17}{'worst track m':>15}  failures"]
     for c, d in s["controllers"].items():
@@ -315,7 +333,7 @@ def format_summary(s: dict[str, Any]) -> str:
     lines.append(
         f"this invocation: {inv['runs']} runs ({inv['resumed_runs']} kept from before), {inv['sim_s']:.0f} simulated s "
         f"in {inv['wall_s']:.1f} s wall"
-        + (f": {rate:.0f} simulated s per wall s ({s['engine']} engine, {s['scheduler']})" if rate else "")
+        + (f": {rate:.0f} simulated s per wall s ({_engines_flown(s)}, {s['scheduler']})" if rate else "")
     )
     b = s.get("single_run_baseline")
     cpu = s.get("sim_seconds_per_cpu_second")
