@@ -146,6 +146,22 @@ def test_a_file_with_actuators_the_fast_engines_do_not_model_is_flown_by_the_sca
         assert s["engine_by_controller"] == {"smc": "scalar"} and s["controllers"]["smc"]["runs"] == 1
 
 
+def test_a_nominal_vehicle_without_a_load_is_flown_by_the_scalar_path(tmp_path: Path) -> None:
+    """The fast engines' laws and filters are written for a load (with the filter the compiled engine raised in its
+    warm-up, with the true state its runs and the batched engine's diverged): a sweep of ``px4-sih`` (no load) is
+    flown by the scalar path whatever the file's engine and estimator."""
+    vehicle = Path(sweep.__file__).parents[2] / "estimators" / "model" / "vehicles" / "px4-sih.toml"
+    f = _short_file(tmp_path)
+    f.write_text(f.read_text(encoding="utf-8") + f'\n[vehicle]\nfile = "{vehicle}"\n', encoding="utf-8")
+    cfg = sweep.load_config(f)
+    assert sweep.engine_for(cfg, "smc") == "scalar" and sweep.engine_for(cfg, "smc-attitude") == "scalar"
+    for eng in ("compiled", "batched"):
+        truth = sweep.config_from_dict({**cfg.to_dict(), "estimator": "truth", "engine": eng})
+        assert sweep.engine_for(truth, "smc") == sweep.engine_for(truth, "cascade") == "scalar"
+    s = execute(1, ["smc"], tmp_path / "out", file=str(f), workers=0, figures=False, progress=False)
+    assert s["engine_by_controller"] == {"smc": "scalar"} and s["controllers"]["smc"]["runs"] == 1
+
+
 def test_warm_up_loads_the_compiled_engine_only_for_its_rows(tmp_path: Path) -> None:
     """``slung sweep`` loads (or compiles) the kernels in its own process before the Dask workers start: a run of
     each compiled row; nothing for an engine that is not compiled."""
