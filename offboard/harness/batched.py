@@ -459,42 +459,34 @@ class _Gusts:
 def run_batch(config: Any, controller: str, runs: list[int]) -> list[dict[str, Any]]:
     """The sweep's rows for ``runs`` with the batched path (see the module docstring): the same rows as
     ``offboard.harness.sweep.run_one`` gives run by run."""
-    from estimators.model.vehicle import load_vehicle
-    from offboard.control.controllers import registry
-    from offboard.harness import sweep
+    from offboard.harness import sweep_runs
 
     if controller not in BATCHED_LAWS:
         raise ValueError(f"the batched engine flies {', '.join(BATCHED_LAWS)} only, not {controller!r}")
-    nominal = load_vehicle(config.vehicle_file)
-    draws = [sweep.draw(config, r, nominal) for r in runs]
-    vehicles = [sweep.plant_vehicle(nominal, d) for d in draws]
-    scs = [sweep.scenario(config, d) for d in draws]
-    params = registry.smc_params(nominal)
-    kw: dict[str, Any] = {"estimator": "truth" if config.estimator == "truth" else "kf", "actuators": config.actuators}
-    if kw["estimator"] == "kf":
-        kw.update(sensors=[sweep.sensor_preset(config, d) for d in draws], seeds=[int(d["sensor_seed"]) for d in draws])
-        kw.update(tuning=registry.filter_tuning(controller))
+    drawn = sweep_runs.drawn_runs(config, controller, runs)
     wall0 = time.perf_counter()
-    log = simulate(scs, vehicles, params, log_every=0, law=controller, **kw)
+    log = simulate(
+        drawn.scenarios,
+        drawn.vehicles,
+        drawn.params,
+        log_every=0,
+        law=controller,
+        actuators=config.actuators,
+        **drawn.simulate_kw,
+    )
     wall = time.perf_counter() - wall0
     fig: Figures = log["figures"]
-    sim_s = (log["n_ticks"] - 1) * 0.001  # the scalar log's last time, tick * control_dt
-    rows = []
-    for b, (r, d) in enumerate(zip(runs, draws)):
-        completed = bool(fig.finite[b])
-        f = {
+    figures = [
+        {
             "peak_swing_rad": float(fig.peak[b]),
             "residual_swing_rad": float(fig.residual[b]) if fig.residual[b] > -math.inf else math.nan,
             "tracking_rms_m": float(math.sqrt(fig.sq[b] / fig.n)),
             "final_error_m": float(fig.final[b]),
             "max_estimate_error_m": float(fig.est_err[b]),
             "slack_steps": int(fig.slack[b]),
-            "completed": completed,
+            "completed": bool(fig.finite[b]),
         }
-        failure = sweep.verdict(config, f)
-        row: dict[str, Any] = {"run": r, "controller": controller}
-        row.update({kk: d[kk] for kk in sweep.PARAMETERS})
-        row.update(f)
-        row.update({"success": failure == "", "failure": failure, "sim_s": sim_s, "wall_s": wall / len(runs)})
-        rows.append(row)
-    return rows
+        for b in range(len(runs))
+    ]
+    sim_s = (log["n_ticks"] - 1) * 0.001  # the scalar log's last time, tick * control_dt
+    return sweep_runs.batch_rows(config, controller, drawn, figures, sim_s, wall)

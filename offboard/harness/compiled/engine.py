@@ -445,29 +445,17 @@ def _flown_actuators(controller: str, nominal: Any, actuators: str) -> str:
 def run_batch(config: Any, controller: str, runs: list[int]) -> list[dict[str, Any]]:
     """The sweep's rows for ``runs`` with the compiled engine: the rows ``offboard.harness.batched.run_batch`` and
     ``offboard.harness.sweep.run_one`` give."""
-    from estimators.model.vehicle import load_vehicle
-    from offboard.control.controllers import registry
-    from offboard.harness import sweep
+    from offboard.harness import sweep_runs
 
-    nominal = load_vehicle(config.vehicle_file)
-    draws = [sweep.draw(config, r, nominal) for r in runs]
-    vehicles = [sweep.plant_vehicle(nominal, d) for d in draws]
-    scs = [sweep.scenario(config, d) for d in draws]
-    params = registry.smc_params(nominal)
-    kw: dict[str, Any] = {"estimator": "truth" if config.estimator == "truth" else "kf"}
-    kw["actuators"] = _flown_actuators(controller, nominal, config.actuators)
-    if kw["estimator"] == "kf":
-        kw.update(sensors=[sweep.sensor_preset(config, d) for d in draws], seeds=[int(d["sensor_seed"]) for d in draws])
-        kw.update(tuning=registry.filter_tuning(controller))
+    drawn = sweep_runs.drawn_runs(config, controller, runs)
+    kw = dict(drawn.simulate_kw, actuators=_flown_actuators(controller, drawn.params.vehicle, config.actuators))
     wall0 = time.perf_counter()
-    rows = cin.sweep_reference(config, controller, scs[0], params)
-    log = simulate(scs, vehicles, params, log_every=0, law=controller, rows=rows, **kw)
+    rows = cin.sweep_reference(config, controller, drawn.scenarios[0], drawn.params)
+    log = simulate(drawn.scenarios, drawn.vehicles, drawn.params, log_every=0, law=controller, rows=rows, **kw)
     wall = time.perf_counter() - wall0
     fig = log["fig"]
-    sim_s = (log["n_ticks"] - 1) * 0.001  # the scalar log's last time, tick * control_dt
-    rows = []
-    for b, (r, d) in enumerate(zip(runs, draws)):
-        f = {
+    figures = [
+        {
             "peak_swing_rad": float(fig[b, FIG_PEAK]),
             "residual_swing_rad": float(fig[b, FIG_RESIDUAL]) if fig[b, FIG_RESIDUAL] > -math.inf else math.nan,
             "tracking_rms_m": float(math.sqrt(fig[b, FIG_SQ] / fig[b, FIG_N])),
@@ -476,10 +464,7 @@ def run_batch(config: Any, controller: str, runs: list[int]) -> list[dict[str, A
             "slack_steps": int(fig[b, FIG_SLACK]),
             "completed": bool(fig[b, FIG_FINITE]),
         }
-        failure = sweep.verdict(config, f)
-        row: dict[str, Any] = {"run": r, "controller": controller}
-        row.update({kk: d[kk] for kk in sweep.PARAMETERS})
-        row.update(f)
-        row.update({"success": failure == "", "failure": failure, "sim_s": sim_s, "wall_s": wall / len(runs)})
-        rows.append(row)
-    return rows
+        for b in range(len(runs))
+    ]
+    sim_s = (log["n_ticks"] - 1) * 0.001  # the scalar log's last time, tick * control_dt
+    return sweep_runs.batch_rows(config, controller, drawn, figures, sim_s, wall)
