@@ -50,8 +50,8 @@ from offboard.harness.compiled.layout import (
     py_hypot,
     py_max,
     py_min,
+    wrap_angle,
 )
-from offboard.harness.compiled.plant import wrap_angle
 
 #: the law's code beside ``laws.LAW_*`` (the driver dispatches it itself: it writes a 7-float command)
 LAW_SMC_ATTITUDE = 4

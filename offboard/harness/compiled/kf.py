@@ -54,6 +54,7 @@ from offboard.harness.compiled.layout import (
     POS,
     inline_kernel,
     pure_kernel,
+    wrap_angle,
 )
 
 #: this module's kernels: no kernel here creates, keeps or returns an array (``layout.pure_kernel``)
@@ -203,16 +204,6 @@ def _minimum(a: float, b: float) -> float:
     if a != a or a <= b:
         return a
     return b
-
-
-@inline_kernel
-def _wrap_angle(a: float) -> float:
-    """``batched_kf.wrap_angles`` (``estimators.model.frames.wrap_angle``): ``a`` (rad) into (-pi, pi]."""
-    two_pi = 2.0 * math.pi
-    w = np.fmod(a + math.pi, two_pi)  # numba has no math.fmod; np.fmod of floats is C fmod (exact)
-    if w <= 0.0:
-        w = w + two_pi
-    return w - math.pi
 
 
 @inline_kernel
@@ -663,7 +654,7 @@ def _fuse_att(c, f, n, t, z):
     _pair(c, f, n, S_TILT, TILT_X, nx, nxd, CH_TILT, CH_TILT_RATE)
     _pair(c, f, n, S_TILT, TILT_Y, ny, nyd, CH_TILT, CH_TILT_RATE)
     psi_est = f[_HD + B_X]
-    _pair(c, f, n, S_PSI, HEAD, psi_est + _wrap_angle(psi - psi_est), psi_rate, CH_YAW, CH_YAW_RATE)
+    _pair(c, f, n, S_PSI, HEAD, psi_est + wrap_angle(psi - psi_est), psi_rate, CH_YAW, CH_YAW_RATE)
 
 
 @_kernel
@@ -844,7 +835,7 @@ def kf_estimate(c: np.ndarray, f: np.ndarray, n: np.ndarray, t: float, est_out: 
     est_out[EST_Z], est_out[EST_Z_RATE] = z, z_rate
     est_out[EST_THETA] = nx * cp + ny * sp
     est_out[EST_PHI] = nx * sp - ny * cp
-    est_out[EST_PSI] = _wrap_angle(psi)
+    est_out[EST_PSI] = wrap_angle(psi)
     est_out[EST_THETA_RATE] = nxd * cp + nyd * sp + psi_rate * (-nx * sp + ny * cp)
     est_out[EST_PHI_RATE] = nxd * sp - nyd * cp + psi_rate * (nx * cp + ny * sp)
     est_out[EST_PSI_RATE] = psi_rate

@@ -54,6 +54,7 @@ from offboard.harness.compiled.layout import (
     inline_kernel,
     pack_constants,
     pure_kernel,
+    wrap_angle,
 )
 
 LAW_SMC, LAW_CASCADE, LAW_SWING_FEEDBACK, LAW_LQR = 0, 1, 2, 3
@@ -243,16 +244,6 @@ def _switch(s: float, smooth: bool, eps: float) -> float:
 
 
 @inline_kernel
-def _wrap(a: float) -> float:
-    """``batched_kf.wrap_angles``: the angle ``a`` (rad) into (-pi, pi], by ``fmod``."""
-    two_pi = 2.0 * math.pi
-    w = np.fmod(a + math.pi, two_pi)  # numba has no math.fmod; both are exact
-    if w <= 0.0:
-        w = w + two_pi
-    return w - math.pi
-
-
-@inline_kernel
 def estimate_is_finite(est: np.ndarray) -> bool:
     """The baselines' screen (``BatchedBaseline``) and the attitude-level law's (``ControlState.is_finite``): the sum
     of the two flat chains and the named scalars, summed as numpy and Python sum them (an overflowing sum is refused
@@ -307,7 +298,7 @@ def _smc_yaw(
     c: np.ndarray, dt: float, int_prev: float, est: np.ndarray, ref: np.ndarray, smooth: bool
 ) -> tuple[float, float]:
     """(the yaw law's torque, N m, unclipped; the new heading-error integral, rad s)."""
-    e_psi = _wrap(est[EST_PSI] - ref[REF_PSI])
+    e_psi = wrap_angle(est[EST_PSI] - ref[REF_PSI])
     e_psid = est[EST_PSI_RATE] - ref[REF_PSI + 1]
     int_psi = int_prev + e_psi * dt
     s_psi = e_psid + c[S_GAMMA1] * e_psi + c[S_GAMMA0] * int_psi
@@ -508,7 +499,7 @@ def _rate_loop(
     phi, theta, psi = est[EST_PHI], est[EST_THETA], est[EST_PSI]
     p_sp = c[C_KP_ATT] * (phi_d - phi)
     q_sp = c[C_KP_ATT] * (theta_d - theta)
-    r_sp = ref[REF_PSI + 1] + c[C_KP_YAW] * _wrap(ref[REF_PSI] - psi)
+    r_sp = ref[REF_PSI + 1] + c[C_KP_YAW] * wrap_angle(ref[REF_PSI] - psi)
     r_sp = _maximum(-c[C_YAW_RATE_MAX], _minimum(c[C_YAW_RATE_MAX], r_sp))
     e_p, e_q = p_sp - est[EST_PHI_RATE], q_sp - est[EST_THETA_RATE]
     i_p, i_q = mem[B_IP] + e_p * dt, mem[B_IQ] + e_q * dt
@@ -585,7 +576,7 @@ def _lqr_errors(c: np.ndarray, est: np.ndarray, ref: np.ndarray, e: np.ndarray, 
     e[2] = est[EST_Z] - ref[REF_Z]
     e[3], e[4] = _rot(cp, sp, vx - vx_r, vy - vy_r)
     e[5] = est[EST_Z_RATE] - ref[REF_Z + 1]
-    e[6], e[7], e[8] = est[EST_PHI] + mphi_r, est[EST_THETA] - th_r, _wrap(psi - ref[REF_PSI])
+    e[6], e[7], e[8] = est[EST_PHI] + mphi_r, est[EST_THETA] - th_r, wrap_angle(psi - ref[REF_PSI])
     e[9], e[10], e[11] = est[EST_PHI_RATE] + mphid_r, est[EST_THETA_RATE] - thd_r, est[EST_PSI_RATE] - ref[REF_PSI + 1]
     e[12], e[13] = _rot(cp, sp, est[EST_ALPHA_Y] - ay_r, est[EST_ALPHA_X] - ax_r)
     e[14], e[15] = _rot(cp, sp, est[EST_ALPHA_Y_RATE] - ay_rd, est[EST_ALPHA_X_RATE] - ax_rd)

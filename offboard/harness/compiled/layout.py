@@ -64,6 +64,17 @@ def inline_kernel(fn):  # type: ignore[no-untyped-def]
     return numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")(fn)
 
 
+@inline_kernel
+def wrap_angle(a: float) -> float:
+    """``estimators.model.frames.wrap_angle`` (and ``batched_kf.wrap_angles``): ``a`` (rad) into (-pi, pi], by
+    ``fmod`` (exact; numba has no ``math.fmod``, ``np.fmod`` of floats is C's)."""
+    two_pi = 2.0 * math.pi
+    w = np.fmod(a + math.pi, two_pi)
+    if w <= 0.0:
+        w = w + two_pi
+    return w - math.pi
+
+
 #: numba's option that leaves out reference counting (numba 0.68; where it is gone, the counts come back)
 _NO_NRT = {"_nrt": False} if hasattr(numba.core.cpu.CPUTargetOptions, "_nrt") else {}
 

@@ -35,6 +35,7 @@ from offboard.harness.compiled.layout import (
     POS,
     inline_kernel,
     pure_kernel,
+    wrap_angle,
 )
 
 # ---- the true vehicle ---------------------------------------------------------------------------------------------
@@ -166,16 +167,6 @@ def apply_drag(u: np.ndarray, x: np.ndarray, force: np.ndarray, torque: np.ndarr
 
 
 # ---- sensors --------------------------------------------------------------------------------------------------------
-@inline_kernel
-def wrap_angle(a: float) -> float:
-    """``estimators.model.frames.wrap_angle``: ``a`` (rad) into [-pi, pi)."""
-    two_pi = 2.0 * math.pi
-    w = np.fmod(a + math.pi, two_pi)  # fmod is exact: the same as math.fmod, which numba lacks
-    if w <= 0.0:
-        w += two_pi
-    return w - math.pi
-
-
 @pure_kernel
 def measure(
     kind: int, x: np.ndarray, deriv: np.ndarray, g: float, bias: np.ndarray, e: np.ndarray, out: np.ndarray
