@@ -38,6 +38,7 @@ from offboard.harness.compiled.layout import (
     REF_FX,
     REF_FY,
     REF_Z,
+    minimum,
     pure_kernel,
 )
 
@@ -265,7 +266,7 @@ def fly_run(
             tens = cp.tension(x, u, p)
             if tens <= 0.0:
                 slack += 1
-            min_tension = cp.nmin(min_tension, tens)
+            min_tension = minimum(min_tension, tens)
             if use_kf:
                 _sample_due(step, next_rec, rec_start, rec_step, rec_noise, rec_val, bias, x, u, p, deriv)
             step += 1

@@ -14,7 +14,7 @@ the adapted position wander, the channels' innovation statistics, the ring of pu
 
 What the numpy code does with masks over runs is a branch here (the gate's accept / refuse / reopen, a block not
 advanced for a step ``h <= 0``, the attitude records too close to pitched vertical to use, the series form of
-the pendulum model, a stale IMU). ``np.maximum`` / ``np.minimum`` become :func:`_maximum` / :func:`_minimum`, which
+the pendulum model, a stale IMU). ``np.maximum`` / ``np.minimum`` become ``layout.maximum`` / ``layout.minimum``, which
 keep numpy's NaN (Python's ``max()`` would not). The one known difference: ``np.tan`` (numpy's own float64 tangent)
 and ``math.tan`` (libm, what the kernels call) may differ in the last bit.
 
@@ -53,6 +53,8 @@ from offboard.harness.compiled.layout import (
     IMU,
     POS,
     inline_kernel,
+    maximum,
+    minimum,
     pure_kernel,
     wrap_angle,
 )
@@ -190,22 +192,6 @@ def kf_new_state(consts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ---- numpy's elementwise semantics on scalars ---------------------------------------------------------------------
-@inline_kernel
-def _maximum(a: float, b: float) -> float:
-    """``np.maximum(a, b)``: NaN when either is NaN."""
-    if a != a or a >= b:
-        return a
-    return b
-
-
-@inline_kernel
-def _minimum(a: float, b: float) -> float:
-    """``np.minimum(a, b)``: NaN when either is NaN."""
-    if a != a or a <= b:
-        return a
-    return b
-
-
 @inline_kernel
 def _pk(i: int, j: int) -> int:
     """The offset of ``P[i][j]`` (= ``P[j][i]``) in a block's upper triangle (``P00`` .. ``P22``)."""
@@ -391,7 +377,7 @@ def _value(c, f, ch):
 def _learn(c, f, ch, y, hph, r, gate):
     """Channel ``ch`` learns innovation ``y`` of predicted variance ``hph + r``, its square clipped at the gate."""
     rate = c[C_ADAPT_RATE]
-    y2 = _minimum(y * y, gate * (hph + r))
+    y2 = minimum(y * y, gate * (hph + r))
     e = f[F_EY2 + ch]
     f[F_EY2 + ch] = e + rate * (y2 - e)
     h = f[F_EHPH + ch]
@@ -456,10 +442,10 @@ def _learn_wander(c, f, i, y, s):
     lam = c[C_WANDER_RATE]
     ym = f[F_Y_MEAN + i]
     rs = math.sqrt(s)
-    m = ym + lam * (_maximum(-3.0, _minimum(3.0, y / rs)) * rs - ym)
+    m = ym + lam * (maximum(-3.0, minimum(3.0, y / rs)) * rs - ym)
     f[F_Y_MEAN + i] = m
     q = f[F_Q_P + i] * (1.2 if m * m > 9.0 * s * lam / (2.0 - lam) else 0.995)
-    f[F_Q_P + i] = _minimum(_maximum(q, c[C_Q_P_MIN]), c[C_Q_P_MAX])
+    f[F_Q_P + i] = minimum(maximum(q, c[C_Q_P_MIN]), c[C_Q_P_MAX])
 
 
 @_kernel
@@ -488,7 +474,7 @@ def _swing_input(c, f, bi, t):
     fresh = _fresh(c, f, t)
     g, l = c[C_G], c[C_L]
     uz = f[F_U + 2] if fresh else 0.0
-    w2 = _maximum(g + uz, 0.2 * g) / l
+    w2 = maximum(g + uz, 0.2 * g) / l
     axis = bi - SWING_X
     u = f[F_U + axis] - f[F_BLOCKS + BLOCK_SIZE * axis + B_X + 2] if fresh else 0.0
     return w2, -u / l
@@ -712,7 +698,7 @@ def _fuse_imu(c, f, n, t, z):
     hz = -st * ax + ct * sf * ay + ct * cf * az
     g = c[C_G]
     fz = f[F_FZ]
-    fz = fz + c[C_ACCEL_GAIN] * (_minimum(_maximum(az, 0.2 * g), 3.0 * g) - fz)
+    fz = fz + c[C_ACCEL_GAIN] * (minimum(maximum(az, 0.2 * g), 3.0 * g) - fz)
     f[F_FZ] = fz
     gain = c[C_M_OVER_M] * fz
     bx, by = cp * ax - sp * ay, sp * ax + cp * ay  # body-horizontal specific force, heading-rotated
@@ -811,7 +797,7 @@ def _external(c, f, bi, e):
     deviation (at the block's last update), as it enters F^(4): times ``g / l``."""
     s = math.sqrt(f[F_BLOCKS + BLOCK_SIZE * bi + B_P + P22])
     g_l = c[C_K_G] / c[C_K_L]
-    return g_l * math.copysign(_maximum(abs(e) - c[C_EXT_SIGNIFICANCE] * s, 0.0), e)
+    return g_l * math.copysign(maximum(abs(e) - c[C_EXT_SIGNIFICANCE] * s, 0.0), e)
 
 
 @_kernel

@@ -18,7 +18,7 @@ As the batched path: the baselines screen the estimate (a run whose estimate is 
 command and keeps its memory; each baseline's ``dt`` from its own last step time); ``smc`` does not screen (its
 ``dt`` is the caller's; a NaN flows through its arithmetic, and into its memory, as numpy's does). Numpy's
 ``maximum`` / ``minimum`` (NaN propagates; between equal values the second argument) and ``clip`` (a value equal
-to a bound, or NaN, passes unchanged) are mirrored by :func:`_maximum`, :func:`_minimum`, :func:`_clip`.
+to a bound, or NaN, passes unchanged) are mirrored by ``layout.maximum``, ``layout.minimum`` and :func:`_clip`.
 """
 
 from __future__ import annotations
@@ -52,6 +52,8 @@ from offboard.harness.compiled.layout import (
     REF_PSI,
     REF_Z,
     inline_kernel,
+    maximum,
+    minimum,
     pack_constants,
     pure_kernel,
     wrap_angle,
@@ -203,22 +205,6 @@ def law_memory(code: int, c: np.ndarray) -> np.ndarray:
 
 # ---- numpy's element-wise functions on scalars -------------------------------------------------------------------
 @inline_kernel
-def _maximum(a: float, b: float) -> float:
-    """``np.maximum(a, b)``: NaN if either is; ``b`` when they compare equal (as numpy's loop, signed zeros)."""
-    if a != a or a > b:
-        return a
-    return b
-
-
-@inline_kernel
-def _minimum(a: float, b: float) -> float:
-    """``np.minimum(a, b)``: NaN if either is; ``b`` when they compare equal."""
-    if a != a or a < b:
-        return a
-    return b
-
-
-@inline_kernel
 def _clip(x: float, lo: float, hi: float) -> float:
     """``np.clip(x, lo, hi)`` (lo <= hi): NaN and a value equal to a bound pass unchanged."""
     if x < lo:
@@ -282,14 +268,14 @@ def _smc_height(
     d1, d2, d3 = (dty * nn - ty * dn) / (nn * nn), (dtx * nn - tx * dn) / (nn * nn), dn / (nn * nn)
     nr = n1 * r1 + n2 * r2 + n3 * r3
     M, m, Mt = c[S_M], c[S_MLOAD], c[S_MT]
-    g_z = (Mt * _maximum(n3, c[S_COS_MAX]) - m * nr * r3) / (M * Mt)
+    g_z = (Mt * maximum(n3, c[S_COS_MAX]) - m * nr * r3) / (M * Mt)
     f_z = m * c[S_L] * (d1 * d1 + d2 * d2 + d3 * d3) * r3 / Mt - c[S_G]
     e_z = est[EST_Z] - ref[REF_Z]
     e_zd = est[EST_Z_RATE] - ref[REF_Z + 1]
     int_z = int_prev + e_z * dt
     s_z = e_zd + c[S_LAMBDA1] * e_z + c[S_LAMBDA0] * int_z
     sw = _switch(s_z, smooth, c[S_EPS_Z])
-    thrust = (ref[REF_Z + 2] - f_z - c[S_LAMBDA1] * e_zd - c[S_LAMBDA0] * e_z - c[S_RHO_Z] * sw) / _maximum(g_z, 1e-3)
+    thrust = (ref[REF_Z + 2] - f_z - c[S_LAMBDA1] * e_zd - c[S_LAMBDA0] * e_z - c[S_RHO_Z] * sw) / maximum(g_z, 1e-3)
     return thrust, int_z
 
 
@@ -358,7 +344,7 @@ def _smc_saturate(c: np.ndarray, mem: np.ndarray, ints: tuple, acts: tuple, u_ou
         need = share * c[S_DF_HOVER]  # smc.shared_thrust_range
         t_lo, t_hi = 4.0 * need, 4.0 * (c[S_F_MAX] - need)
         s1 = s1 or thrust < t_lo or thrust > t_hi
-        thrust = _minimum(_maximum(thrust, t_lo), t_hi)
+        thrust = minimum(maximum(thrust, t_lo), t_hi)
     u_out[0], u_out[1], u_out[2], u_out[3] = thrust, tau_phi, tau_theta, _clip(tau_psi, -ts_max, ts_max)
     if not s1:
         mem[M_INT_Z] = ints[0]
@@ -440,7 +426,7 @@ def _velocity_setpoint(c: np.ndarray, est: np.ndarray, ref: np.ndarray, offs: tu
     if sp > c[C_VEL_MAX_XY]:
         scale = c[C_VEL_MAX_XY] / sp
         vsx, vsy = vsx * scale, vsy * scale
-    vsz = _maximum(-c[C_VEL_MAX_Z], _minimum(c[C_VEL_MAX_Z], vsz))
+    vsz = maximum(-c[C_VEL_MAX_Z], minimum(c[C_VEL_MAX_Z], vsz))
     return vsx, vsy, vsz
 
 
@@ -472,7 +458,7 @@ def _acceleration_setpoint(
 def _attitude_setpoint(c: np.ndarray, ax: float, ay: float, az: float, psi_d: float) -> tuple:
     """Step 3: the thrust vector tilt limited as PX4 does -> (thrust N, roll and pitch setpoints rad, tilt
     limited) at the heading ``psi_d`` (rad)."""
-    tz = _maximum(az + c[C_G], 0.1 * c[C_G])  # never a downward or vanishing thrust
+    tz = maximum(az + c[C_G], 0.1 * c[C_G])  # never a downward or vanishing thrust
     h = math.hypot(ax, ay)
     h_max = tz * c[C_TAN_TILT]
     tilted = h > h_max
@@ -483,7 +469,7 @@ def _attitude_setpoint(c: np.ndarray, ax: float, ay: float, az: float, psi_d: fl
     cp, sp = math.cos(psi_d), math.sin(psi_d)
     zx, zy = cp * ax + sp * ay, -sp * ax + cp * ay
     norm = math.sqrt(zx * zx + zy * zy + tz * tz)
-    phi_d = math.asin(_maximum(-1.0, _minimum(1.0, -zy / norm)))
+    phi_d = math.asin(maximum(-1.0, minimum(1.0, -zy / norm)))
     theta_d = math.atan2(zx, tz)
     return thrust, phi_d, theta_d, tilted
 
@@ -500,7 +486,7 @@ def _rate_loop(
     p_sp = c[C_KP_ATT] * (phi_d - phi)
     q_sp = c[C_KP_ATT] * (theta_d - theta)
     r_sp = ref[REF_PSI + 1] + c[C_KP_YAW] * wrap_angle(ref[REF_PSI] - psi)
-    r_sp = _maximum(-c[C_YAW_RATE_MAX], _minimum(c[C_YAW_RATE_MAX], r_sp))
+    r_sp = maximum(-c[C_YAW_RATE_MAX], minimum(c[C_YAW_RATE_MAX], r_sp))
     e_p, e_q = p_sp - est[EST_PHI_RATE], q_sp - est[EST_THETA_RATE]
     i_p, i_q = mem[B_IP] + e_p * dt, mem[B_IQ] + e_q * dt
     tau_phi = c[C_IX] * (c[C_KR_RP] * e_p + c[C_KI_RP] * i_p)
@@ -630,10 +616,10 @@ def lqr_step(
     tp, tt, ts = c[Q_TP], c[Q_TT], c[Q_TS]
     sat = thrust > c[Q_THRUST_MAX] or thrust < 0.0
     sat = sat or abs(tau_phi) > tp or abs(tau_theta) > tt or abs(tau_psi) > ts
-    u_out[0] = _minimum(_maximum(thrust, 0.0), c[Q_THRUST_MAX])
-    u_out[1] = _maximum(-tp, _minimum(tp, tau_phi))
-    u_out[2] = _maximum(-tt, _minimum(tt, tau_theta))
-    u_out[3] = _maximum(-ts, _minimum(ts, tau_psi))
+    u_out[0] = minimum(maximum(thrust, 0.0), c[Q_THRUST_MAX])
+    u_out[1] = maximum(-tp, minimum(tp, tau_phi))
+    u_out[2] = maximum(-tt, minimum(tt, tau_theta))
+    u_out[3] = maximum(-ts, minimum(ts, tau_psi))
     for j in range(4):
         if not sat:
             mem[B_INT + j] = e[16 + j]
@@ -664,7 +650,7 @@ def law_step(
         u_out[0], u_out[1], u_out[2], u_out[3] = c[BASE_HOVER], 0.0, 0.0, 0.0
         return False
     t_last = mem[B_T_LAST]
-    own_dt = 0.0 if math.isnan(t_last) else _maximum(0.0, t - t_last)
+    own_dt = 0.0 if math.isnan(t_last) else maximum(0.0, t - t_last)
     mem[B_T_LAST] = t
     if code == LAW_LQR:
         return lqr_step(c, K, mem, own_dt, est, ref, u_out)

@@ -75,6 +75,23 @@ def wrap_angle(a: float) -> float:
     return w - math.pi
 
 
+@inline_kernel
+def maximum(a: float, b: float) -> float:
+    """``np.maximum(a, b)`` of two floats: NaN if either is; ``b`` when they compare equal (numpy's loop: signed
+    zeros). Python's ``max()`` would drop a NaN."""
+    if a != a or a > b:
+        return a
+    return b
+
+
+@inline_kernel
+def minimum(a: float, b: float) -> float:
+    """``np.minimum(a, b)`` of two floats: NaN if either is; ``b`` when they compare equal."""
+    if a != a or a < b:
+        return a
+    return b
+
+
 #: numba's option that leaves out reference counting (numba 0.68; where it is gone, the counts come back)
 _NO_NRT = {"_nrt": False} if hasattr(numba.core.cpu.CPUTargetOptions, "_nrt") else {}
 

@@ -34,6 +34,8 @@ from offboard.harness.compiled.layout import (
     LOAD,
     POS,
     inline_kernel,
+    maximum,
+    minimum,
     pure_kernel,
     wrap_angle,
 )
@@ -256,8 +258,8 @@ def mixer_allocate(c: np.ndarray, thrust: float, tx: float, ty: float, tz: float
     ky = ty / (4.0 * a)
     kz = tz / (4.0 * c[MIX_C])
     r0, r1, r2, r3 = kx - ky, -kx - ky, -kx + ky, kx + ky
-    lo = nmin(nmin(r0, r1), nmin(r2, r3))
-    hi = nmax(nmax(r0, r1), nmax(r2, r3))
+    lo = minimum(minimum(r0, r1), minimum(r2, r3))
+    hi = maximum(maximum(r0, r1), maximum(r2, r3))
     span = hi - lo
     if span > fmax:
         s = fmax / span
@@ -270,12 +272,12 @@ def mixer_allocate(c: np.ndarray, thrust: float, tx: float, ty: float, tz: float
         r0, r1, r2, r3 = r0 * s, r1 * s, r2 * s, r3 * s
     f0, f1, f2, f3 = base + r0, base + r1, base + r2, base + r3
     if kz > 0.0:
-        k = nmin(nmin(1.0, (fmax - f0) / kz), nmin((fmax - f2) / kz, f1 / kz))
-        k = nmin(k, f3 / kz)
+        k = minimum(minimum(1.0, (fmax - f0) / kz), minimum((fmax - f2) / kz, f1 / kz))
+        k = minimum(k, f3 / kz)
     elif kz < 0.0:
         kn = -kz
-        k = nmin(nmin(1.0, f0 / kn), nmin(f2 / kn, (fmax - f1) / kn))
-        k = nmin(k, (fmax - f3) / kn)
+        k = minimum(minimum(1.0, f0 / kn), minimum(f2 / kn, (fmax - f1) / kn))
+        k = minimum(k, (fmax - f3) / kn)
     else:
         k = 1.0
     if k < 0.0:
@@ -305,22 +307,6 @@ def mixer_step(c: np.ndarray, f: np.ndarray, cmd: np.ndarray, u: np.ndarray) -> 
     for i in range(4):
         f[i] = f[i] + (cmd[i] - f[i]) * alpha
     mixer_wrench(c, f, u)
-
-
-@inline_kernel
-def nmin(a: float, b: float) -> float:
-    """``np.minimum`` of two floats (NaN propagates)."""
-    if a != a or b != b:
-        return a + b
-    return a if a <= b else b
-
-
-@inline_kernel
-def nmax(a: float, b: float) -> float:
-    """``np.maximum`` of two floats (NaN propagates)."""
-    if a != a or b != b:
-        return a + b
-    return a if a >= b else b
 
 
 # ---- the true state as the controller's input ------------------------------------------------------------------------
