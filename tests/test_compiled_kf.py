@@ -23,6 +23,7 @@ from typing import Any
 import numba
 import numpy as np
 import pytest
+from sweep_helpers import short_file
 
 from estimators.filters.batched_kf import BatchedMeasuredKalman
 from estimators.filters.measured_kf import MeasuredTuning
@@ -165,12 +166,7 @@ class RecordingKalman(BatchedMeasuredKalman):
 
 def _short_file(tmp: Path) -> Path:
     """The default sweep file with a 1 s move and a 0.5 s hold, the filter in the loop (as tests/test_sweep.py)."""
-    text = sweep.DEFAULT_FILE.read_text(encoding="utf-8")
-    text = text.replace("move_time_s = 4.0", "move_time_s = 1.0").replace("hold_s = 8.0", "hold_s = 0.5")
-    text = text.replace("gust_start_s = {low = 1.0, high = 5.0}", "gust_start_s = {low = 0.5, high = 3.0}")
-    p = tmp / "sweep.toml"
-    p.write_text(text, encoding="utf-8")
-    return p
+    return short_file(tmp, "compiled", "kf", move=1.0, hold=0.5, gust_start=(0.5, 3.0))
 
 
 @functools.cache
