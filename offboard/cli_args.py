@@ -90,8 +90,8 @@ def add_feedforward_argument(p: argparse.ArgumentParser) -> None:
         "--external-feedforward",
         action="store_true",
         help="with the kf filter: the external acceleration on the vehicle it estimates (a gust, a push; beyond 3 "
-        "of its standard deviations) is fed forward into the law's F^(4), as the smc row of slung compare / sweep "
-        "flies (default: off, the chain of the pendulum model alone)",
+        "of its standard deviations) is fed forward into the law's F^(4), as the smc and smc-attitude rows of slung "
+        "compare / sweep fly (default: off, the chain of the pendulum model alone)",
     )
 
 

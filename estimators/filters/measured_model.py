@@ -67,8 +67,9 @@ class MeasuredTuning(MeasurementNoise):
     accel_gain_filter: float = 0.1  # weight of a new sample in the low-pass of the vertical specific force
 
 
-#: the tuning with the external acceleration fed forward (``MeasuredTuning.external_feedforward``): the ``smc`` row
-#: of compare / sweep (``registry.filter_tuning``) and ``--external-feedforward`` (sim, fly, demo; replay rebuilds it)
+#: the tuning with the external acceleration fed forward (``MeasuredTuning.external_feedforward``): the ``smc`` and
+#: ``smc-attitude`` rows of compare / sweep (``registry.filter_tuning``) and ``--external-feedforward`` (sim, fly,
+#: demo; replay rebuilds it)
 FEEDFORWARD_TUNING = MeasuredTuning(external_feedforward=True)
 
 
