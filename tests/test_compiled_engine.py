@@ -17,6 +17,7 @@ from offboard.control import smc
 from offboard.control.controllers import registry
 from offboard.harness import sim, sweep
 from offboard.harness.compiled import engine
+from offboard.harness.compiled import inputs as cin
 from offboard.harness.sweep_cli import execute
 from offboard.logs.runlog import SimConfig
 
@@ -167,3 +168,14 @@ def test_warm_up_loads_the_compiled_engine_only_for_its_rows(tmp_path: Path) -> 
     each compiled row; nothing for an engine that is not compiled."""
     assert sweep.warm_up(sweep.load_config(_short_file(tmp_path, engine="batched")), ["smc", "lqr"]) == 0.0
     assert sweep.warm_up(sweep.load_config(_short_file(tmp_path)), ["smc", "lqr"]) > 0.0
+
+
+def test_only_the_shaped_rows_have_a_reference_of_their_own() -> None:
+    """The sweep samples its reference once for every row that flies it unshaped (``inputs.SHAPED_LAWS``): the
+    rows whose batched law really has a shaper in front of it (``batched.batched_law``) are exactly those."""
+    from offboard.harness.batched import batched_law
+
+    for law in cin.COMPILED_LAWS:
+        has_shaper = law not in ("smc", "smc-attitude") and batched_law(law, V, 1)[1] is not None
+        assert has_shaper == (law in cin.SHAPED_LAWS), law
+        assert (cin.law_shaper(law, V) is not None) == has_shaper, law

@@ -38,11 +38,15 @@ def check_law(law: str, actuators: str) -> None:
         raise ValueError(f"the compiled path flies {law!r} with actuators {' or '.join(wanted)}, not {actuators!r}")
 
 
+#: the rows that fly a shaped reference (the input-shaping cascades); every other row flies the reference itself
+SHAPED_LAWS = ("zv", "zvd")
+
+
 def law_shaper(law: str, nominal: Any) -> Any:
     """The reference shaper in front of ``law`` on the ``nominal`` vehicle (``zv`` / ``zvd``), else None."""
     from offboard.harness.batched import batched_law
 
-    if law in ("smc", "smc-attitude"):
+    if law not in SHAPED_LAWS:
         return None
     return batched_law(law, nominal, 1)[1]
 
@@ -87,8 +91,9 @@ _REFERENCES: dict[tuple[Any, ...], tuple[np.ndarray, np.ndarray]] = {}
 def sweep_reference(config: Any, controller: str, scenario: Any, params: Any) -> tuple[np.ndarray, np.ndarray]:
     """The sweep's one reference as rows (and the law's, shaped for ``zv`` / ``zvd``), sampled once per process for
     a file's move and nominal vehicle: every run of every chunk flies the same reference (``sweep.scenario``), and
-    sampling its 13 001 ticks costs as much as flying 40 runs."""
-    key = (config.move_time_s, config.distance_m, config.hold_s, config.vehicle_file, controller)
+    sampling its 13 001 ticks costs as much as flying 40 runs; the rows that fly it unshaped share one sampling."""
+    shaped = controller if controller in SHAPED_LAWS else ""
+    key = (config.move_time_s, config.distance_m, config.hold_s, config.vehicle_file, shaped)
     if key not in _REFERENCES:
         n_ticks = math.floor(scenario.duration / 0.001 + 1e-9) + 1
         if len(_REFERENCES) > 16:
