@@ -27,6 +27,7 @@ import numpy as np
 
 from estimators.filters.fusion import chi2_quantile
 from estimators.filters.measured_kf import MeasuredTuning, thrust_window
+from estimators.filters.measured_model import channel_floors
 from estimators.filters.small_kf import propagate_cov, propagate_cov3
 from estimators.model.flatness import flat_constants
 from estimators.model.vehicle import Vehicle
@@ -232,21 +233,7 @@ class BatchedMeasuredKalman:
         self._m_over_M = vehicle.mass_load / vehicle.mass_vehicle
         self._gate = {d: chi2_quantile(tn.gate_probability, d) for d in (1, 2, 3)}
         self._rate = tn.noise_adapt_rate
-        floors = {
-            "pos_xy": tn.sigma_pos_xy**2,
-            "vel_xy": tn.sigma_vel_xy**2,
-            "pos_z": tn.sigma_pos_z**2,
-            "vel_z": tn.sigma_vel_z**2,
-            "tilt": tn.sigma_tilt**2,
-            "tilt_rate": tn.sigma_rate**2,
-            "yaw": tn.sigma_yaw**2,
-            "yaw_rate": tn.sigma_rate**2,
-            "acc": tn.sigma_acc**2,
-            "acc_in": 2.0 * tn.sigma_acc**2,
-            "load": tn.sigma_load**2,
-            "gyro_rate": tn.sigma_gyro**2,
-            "gyro_yaw_rate": tn.sigma_gyro**2,
-        }
+        floors = channel_floors(tn)
         self._floor = floors
         self._ceiling = {c: f * tn.noise_ceiling**2 for c, f in floors.items()}
 

@@ -60,7 +60,17 @@ from collections import deque
 import numpy as np
 
 from estimators.filters.fusion import BASE_STATS, RecordFusion, check_rates, chi2_quantile
-from estimators.filters.measured_model import KIN, RATE, SWING, Block, Channel, Gyro, MeasuredTuning, thrust_window
+from estimators.filters.measured_model import (
+    KIN,
+    RATE,
+    SWING,
+    Block,
+    Channel,
+    Gyro,
+    MeasuredTuning,
+    channel_floors,
+    thrust_window,
+)
 from estimators.filters.measured_predict import MeasuredPrediction
 from estimators.filters.measured_update import KINDS, STREAMS, MeasuredUpdates
 from estimators.model.control_state import ControlState
@@ -97,26 +107,7 @@ class MeasuredKalmanEstimator(MeasuredPrediction, MeasuredUpdates, RecordFusion)
         self._m_over_M = vehicle.mass_load / vehicle.mass_vehicle
         self._gate = {d: chi2_quantile(tn.gate_probability, d) for d in (1, 2, 3)}
         self._rate = tn.noise_adapt_rate
-        cf = tn.noise_ceiling
-
-        def ch(floor: float) -> Channel:
-            return Channel(floor, cf)
-
-        self._ch = {
-            "pos_xy": ch(tn.sigma_pos_xy**2),
-            "vel_xy": ch(tn.sigma_vel_xy**2),
-            "pos_z": ch(tn.sigma_pos_z**2),
-            "vel_z": ch(tn.sigma_vel_z**2),
-            "tilt": ch(tn.sigma_tilt**2),
-            "tilt_rate": ch(tn.sigma_rate**2),
-            "yaw": ch(tn.sigma_yaw**2),
-            "yaw_rate": ch(tn.sigma_rate**2),
-            "gyro_rate": ch(tn.sigma_gyro**2),
-            "gyro_yaw_rate": ch(tn.sigma_gyro**2),
-            "acc": ch(tn.sigma_acc**2),
-            "acc_in": ch(2.0 * tn.sigma_acc**2),
-            "load": ch(tn.sigma_load**2),
-        }
+        self._ch = {name: Channel(floor, tn.noise_ceiling) for name, floor in channel_floors(tn).items()}
         self._stats = {
             **dict.fromkeys(BASE_STATS, 0),
             "accuracy_reports": 0,

@@ -73,6 +73,28 @@ class MeasuredTuning(MeasurementNoise):
 FEEDFORWARD_TUNING = MeasuredTuning(external_feedforward=True)
 
 
+def channel_floors(tuning: MeasuredTuning) -> dict[str, float]:
+    """Each measurement channel's nominal variance (its floor; the adapted one stays between it and
+    ``noise_ceiling**2`` times it), from ``tuning``'s standard deviations: SI units squared, rad^2, (rad/s)^2. The
+    acceleration input's is twice the accelerometer's (two samples differ)."""
+    tn = tuning
+    return {
+        "pos_xy": tn.sigma_pos_xy**2,
+        "vel_xy": tn.sigma_vel_xy**2,
+        "pos_z": tn.sigma_pos_z**2,
+        "vel_z": tn.sigma_vel_z**2,
+        "tilt": tn.sigma_tilt**2,
+        "tilt_rate": tn.sigma_rate**2,
+        "yaw": tn.sigma_yaw**2,
+        "yaw_rate": tn.sigma_rate**2,
+        "gyro_rate": tn.sigma_gyro**2,
+        "gyro_yaw_rate": tn.sigma_gyro**2,
+        "acc": tn.sigma_acc**2,
+        "acc_in": 2.0 * tn.sigma_acc**2,
+        "load": tn.sigma_load**2,
+    }
+
+
 def thrust_window(tuning: MeasuredTuning, rate_hz: float) -> int:
     """How many pushed commands (one per control tick at ``rate_hz``, Hz) span ``tuning.imu_timeout_s``: the window
     of thrusts whose range widens the acceleration input's gate (at least 1)."""
@@ -140,4 +162,15 @@ class Channel:
         self.ehph += rate * (hph - self.ehph)
 
 
-__all__ = ["FEEDFORWARD_TUNING", "KIN", "RATE", "SWING", "Block", "Channel", "Gyro", "MeasuredTuning", "thrust_window"]
+__all__ = [
+    "FEEDFORWARD_TUNING",
+    "KIN",
+    "RATE",
+    "SWING",
+    "Block",
+    "Channel",
+    "Gyro",
+    "MeasuredTuning",
+    "channel_floors",
+    "thrust_window",
+]

@@ -32,6 +32,7 @@ import numpy as np
 
 from estimators.filters.fusion import chi2_quantile
 from estimators.filters.measured_kf import MeasuredTuning, thrust_window
+from estimators.filters.measured_model import channel_floors
 from estimators.model.flatness import flat_constants
 from estimators.model.vehicle import Vehicle
 from offboard.harness.compiled.layout import (
@@ -163,21 +164,7 @@ def kf_constants(
     sds = (tn.prior_pos, tn.prior_vel, tn.prior_bias, tn.prior_tilt, tn.prior_tilt_rate, tn.prior_psi)
     sds += (tn.prior_psi_rate, tn.prior_swing, tn.prior_swing_rate, tn.prior_e)
     c[C_VAR_POS : C_VAR_E + 1] = [sd**2 for sd in sds]  # ** as _Block squares them (x ** 2 == x * x exactly)
-    floors = {
-        "pos_xy": tn.sigma_pos_xy**2,
-        "vel_xy": tn.sigma_vel_xy**2,
-        "pos_z": tn.sigma_pos_z**2,
-        "vel_z": tn.sigma_vel_z**2,
-        "tilt": tn.sigma_tilt**2,
-        "tilt_rate": tn.sigma_rate**2,
-        "yaw": tn.sigma_yaw**2,
-        "yaw_rate": tn.sigma_rate**2,
-        "acc": tn.sigma_acc**2,
-        "acc_in": 2.0 * tn.sigma_acc**2,
-        "load": tn.sigma_load**2,
-        "gyro_rate": tn.sigma_gyro**2,
-        "gyro_yaw_rate": tn.sigma_gyro**2,
-    }
+    floors = channel_floors(tn)
     for i, name in enumerate(CHANNELS):
         c[C_FLOOR + i] = floors[name]
         c[C_CEILING + i] = floors[name] * tn.noise_ceiling**2
