@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from sweep_helpers import assert_engines_write_the_same_table, short_file
 
+from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc
 from offboard.control.controllers import registry
@@ -147,20 +148,28 @@ def test_a_file_with_actuators_the_fast_engines_do_not_model_is_flown_by_the_sca
         assert s["engine_by_controller"] == {"smc": "scalar"} and s["controllers"]["smc"]["runs"] == 1
 
 
-def test_a_nominal_vehicle_without_a_load_is_flown_by_the_scalar_path(tmp_path: Path) -> None:
-    """The fast engines' laws and filters are written for a load (with the filter the compiled engine raised in its
-    warm-up, with the true state its runs and the batched engine's diverged): a sweep of ``px4-sih`` (no load) is
-    flown by the scalar path whatever the file's engine and estimator."""
+def test_a_vehicle_without_a_load_is_refused_by_sweep_and_compare_in_one_line(tmp_path: Path) -> None:
+    """Sweep and compare judge a load's swing and tracking; without a load (``px4-sih``) the plant swings a massless
+    pendulum and every figure means nothing (the compiled engine's filter raised in its warm-up, its runs and the
+    batched ones diverged, the scalar ones "failed" on that swing): both commands refuse such a vehicle with one
+    line naming it, exit 2, no traceback."""
+    import subprocess
+    import sys
+
     vehicle = Path(sweep.__file__).parents[2] / "estimators" / "model" / "vehicles" / "px4-sih.toml"
     f = _short_file(tmp_path)
     f.write_text(f.read_text(encoding="utf-8") + f'\n[vehicle]\nfile = "{vehicle}"\n', encoding="utf-8")
-    cfg = sweep.load_config(f)
-    assert sweep.engine_for(cfg, "smc") == "scalar" and sweep.engine_for(cfg, "smc-attitude") == "scalar"
-    for eng in ("compiled", "batched"):
-        truth = sweep.config_from_dict({**cfg.to_dict(), "estimator": "truth", "engine": eng})
-        assert sweep.engine_for(truth, "smc") == sweep.engine_for(truth, "cascade") == "scalar"
-    s = execute(1, ["smc"], tmp_path / "out", file=str(f), workers=0, figures=False, progress=False)
-    assert s["engine_by_controller"] == {"smc": "scalar"} and s["controllers"]["smc"]["runs"] == 1
+    with pytest.raises(UserError, match="'px4-sih' carries no load"):
+        sweep.load_config(f)
+    for argv in (
+        ["sweep", "--runs", "1", "--file", str(f), "--out", str(tmp_path / "s")],
+        ["compare", "--scenario", "hover", "--vehicle", "px4-sih", "--out", str(tmp_path / "c")],
+    ):
+        p = subprocess.run([sys.executable, "-m", "offboard.cli", *argv], capture_output=True, text=True, timeout=120)
+        assert p.returncode == 2, p.stderr
+        lines = p.stderr.strip().splitlines()
+        assert len(lines) == 1 and "carries no load" in lines[0] and "Traceback" not in p.stderr, p.stderr
+        assert not (tmp_path / argv[-1]).exists() or not any((tmp_path / argv[-1]).iterdir())
 
 
 def test_warm_up_loads_the_compiled_engine_only_for_its_rows(tmp_path: Path) -> None:

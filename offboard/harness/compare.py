@@ -148,6 +148,16 @@ def _none_if_nan(v: float) -> float | None:
     return None if not math.isfinite(v) else float(v)
 
 
+def require_load(vehicle: Any, where: str = "") -> None:
+    """UserError unless ``vehicle`` carries a load: compare and sweep judge the load's swing and tracking, which
+    a vehicle without one does not have (its plant would swing a massless pendulum)."""
+    if not vehicle.mass_load > 0.0:
+        raise UserError(
+            f"{where}vehicle {vehicle.name!r} carries no load ([load] mass_kg = 0): compare and sweep judge the "
+            "load's swing and tracking; give a vehicle file with a load"
+        )
+
+
 def case_figures(case: Case, log: SimLog) -> dict[str, Any]:
     """The figures of one run (see the module docstring)."""
     d = log.data

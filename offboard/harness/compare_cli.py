@@ -73,6 +73,7 @@ def designs_missing(names: list[str], vehicle: Any, flavour: str = "px4") -> dic
 def run(args: argparse.Namespace) -> int:
     the_cases = compare.cases(args.scenario)
     vehicle = load_vehicle(args.vehicle)
+    compare.require_load(vehicle)
     if args.mavlink:
         compare_mavlink.check_scenario(args.scenario)
         if args.estimator != "kf" or args.no_load_sensor:

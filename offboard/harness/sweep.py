@@ -27,7 +27,6 @@ final position error are within the bounds.
 
 from __future__ import annotations
 
-import functools
 import math
 import sys
 from dataclasses import dataclass, field, replace
@@ -183,6 +182,10 @@ def load_config(path: str | Path | None) -> SweepConfig:
     if "file" in veh:
         vf = Path(veh["file"])
         kw["vehicle_file"] = str(vf if vf.is_absolute() else p.parent / vf)
+    from estimators.model.vehicle import load_vehicle
+    from offboard.harness.compare import require_load
+
+    require_load(load_vehicle(kw.get("vehicle_file")), f"sweep file {p}: ")
     params: dict[str, Distribution] = {}
     for name, spec in data.get("parameters", {}).items():
         if name not in PARAMETERS:
@@ -445,12 +448,9 @@ def engine_for(config: SweepConfig, controller: str) -> str:
     scalar path) and the compiled path those of ``offboard.harness.compiled.inputs.COMPILED_LAWS`` (every row).
     Both model the filter ``kf`` or the true state, and the ideal actuators or the mixer (the compiled path also PX4's
     attitude loops, which ``smc-attitude`` flies); a file asking for others (``actuators = "px4"``, PX4's allocator
-    behind a torque-level law; the ``kf-torque`` filter) is flown by the scalar path, which models them all, and so
-    is a nominal vehicle without a load (the fast engines' laws and filters are written for one)."""
+    behind a torque-level law; the ``kf-torque`` filter) is flown by the scalar path, which models them all."""
     if config.estimator not in ("truth", "kf") or config.actuators not in ("ideal", "mixer"):
         return "scalar"
-    if not _nominal_has_load(config.vehicle_file):
-        return "scalar"  # their laws and filters are written for a load (their runs diverge without one)
     if config.engine == "compiled":
         from offboard.harness.compiled.inputs import COMPILED_LAWS  # loads numba: only for the compiled engine
 
@@ -458,14 +458,6 @@ def engine_for(config: SweepConfig, controller: str) -> str:
     from offboard.harness.batched import BATCHED_LAWS
 
     return "batched" if config.engine == "batched" and controller in BATCHED_LAWS else "scalar"
-
-
-@functools.lru_cache(maxsize=8)
-def _nominal_has_load(vehicle_file: str | None) -> bool:
-    """Whether the sweep's nominal vehicle (``vehicle_file``, or the paper's) carries a load."""
-    from estimators.model.vehicle import load_vehicle
-
-    return load_vehicle(vehicle_file).mass_load > 0.0
 
 
 def single_run_speed(config: SweepConfig) -> dict[str, float]:

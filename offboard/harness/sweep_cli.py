@@ -115,8 +115,7 @@ def execute(
     if n_todo and slow:  # said even without the progress bar: it is why the sweep is slow
         print(
             f"the {config.engine} engine does not fly {', '.join(slow)} with estimator {config.estimator}, actuators "
-            f"{config.actuators} or a vehicle without a load: the scalar path flies them (about 7 simulated s per "
-            "wall s per worker)",
+            f"{config.actuators}: the scalar path flies them (about 7 simulated s per wall s per worker)",
             file=sys.stderr,
         )
     if n_todo and any(sweep.engine_for(config, c) == "compiled" for c, _ in tasks):
