@@ -41,7 +41,8 @@ POS, ATT, IMU, LOAD = 0, 1, 2, 3
 GYRO = 12
 #: the blocks in the scalar filter's order (``_blocks``): kinematics x, y, z, tilt x, y, heading, swing x, y
 BLOCKS = ("kin_x", "kin_y", "kin_z", "tilt_x", "tilt_y", "head", "swing_x", "swing_y")
-_CHANNELS = (
+#: the measurement channels, each with its adapted noise (``MeasuredKalmanEstimator``'s ``_ch``), in this order
+CHANNELS = (
     "pos_xy",
     "vel_xy",
     "pos_z",
@@ -57,7 +58,8 @@ _CHANNELS = (
     "gyro_yaw_rate",
 )
 _DEFAULT_TUNING = MeasuredTuning()
-_STREAMS = ("pos", "z", "tilt", "psi", "acc", "acc_in", "load", "gyro")
+#: the gate streams (the scalar filter's ``gated_<stream>`` counters), in this order
+GATE_STREAMS = ("pos", "z", "tilt", "psi", "acc", "acc_in", "load", "gyro")
 
 
 def wrap_angles(a: Array) -> Array:
@@ -274,7 +276,7 @@ class BatchedMeasuredKalman:
         self.fz = np.full(B, self._g)
         self.ey2 = {c: np.full(B, f) for c, f in self._floor.items()}
         self.ehph = {c: np.zeros(B) for c in self._floor}
-        self.gated_run = {s: np.zeros(B, dtype=int) for s in _STREAMS}
+        self.gated_run = {s: np.zeros(B, dtype=int) for s in GATE_STREAMS}
 
     # ---- channels and gates ---------------------------------------------------------------------------------
     def _value(self, c: str, idx: Array) -> Array:
@@ -605,4 +607,4 @@ class BatchedMeasuredKalman:
         }
 
 
-__all__ = ["ATT", "BLOCKS", "IMU", "LOAD", "POS", "BatchedMeasuredKalman"]
+__all__ = ["ATT", "BLOCKS", "CHANNELS", "GATE_STREAMS", "IMU", "LOAD", "POS", "BatchedMeasuredKalman"]

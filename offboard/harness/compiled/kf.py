@@ -30,6 +30,7 @@ import math
 
 import numpy as np
 
+from estimators.filters.batched_kf import CHANNELS, GATE_STREAMS
 from estimators.filters.fusion import chi2_quantile
 from estimators.filters.measured_kf import MeasuredTuning, thrust_window
 from estimators.filters.measured_model import channel_floors
@@ -81,30 +82,15 @@ C_VAR_POS, C_VAR_VEL, C_VAR_BIAS, C_VAR_TILT, C_VAR_TILT_RATE = range(35, 40)
 C_VAR_PSI, C_VAR_PSI_RATE, C_VAR_SWING, C_VAR_SWING_RATE, C_VAR_E = range(40, 45)
 
 # ---- measurement channels (each a floor, a ceiling and two running statistics) and gate streams -------------------
-CHANNELS = (
-    "pos_xy",
-    "vel_xy",
-    "pos_z",
-    "vel_z",
-    "tilt",
-    "tilt_rate",
-    "yaw",
-    "yaw_rate",
-    "acc",
-    "acc_in",
-    "load",
-    "gyro_rate",
-    "gyro_yaw_rate",
-)
 CH_POS_XY, CH_VEL_XY, CH_POS_Z, CH_VEL_Z, CH_TILT, CH_TILT_RATE, CH_YAW, CH_YAW_RATE = range(8)
 CH_ACC, CH_ACC_IN, CH_LOAD, CH_GYRO_RATE, CH_GYRO_YAW_RATE = range(8, 13)
-N_CHANNELS = 13
+N_CHANNELS = len(CHANNELS)  # the CH_* indices follow batched_kf.CHANNELS
 C_FLOOR = 45  # N_CHANNELS floors (variances), then N_CHANNELS ceilings
 C_CEILING = C_FLOOR + N_CHANNELS
 C_SIZE = C_CEILING + N_CHANNELS
 
 #: the gate streams (``MeasuredKalmanEstimator.stats``'s ``gated_<stream>``), in the numpy filter's order
-STREAMS = ("pos", "z", "tilt", "psi", "acc", "acc_in", "load", "gyro")
+STREAMS = GATE_STREAMS
 S_POS, S_Z, S_TILT, S_PSI, S_ACC, S_ACC_IN, S_LOAD, S_GYRO = range(8)
 
 # ---- the state f (floats) and n (integers) ------------------------------------------------------------------------
