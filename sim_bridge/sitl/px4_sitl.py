@@ -138,6 +138,9 @@ class Px4Sitl:
     stop_timeout_s: float = 10.0
     params: dict[str, float] = field(default_factory=dict)
     nice: int = -10
+    #: PX4_SIM_MODEL: the SIH quadrotor (default), or ``px4_hil.HIL_MODEL`` for an external simulator on TCP
+    #: 4560 + instance (``sim_bridge.sitl.px4_hil``: the vehicle with its slung load)
+    model: str = SIH_MODEL
     _proc: subprocess.Popen[bytes] | None = field(default=None, init=False, repr=False)
     _own_workdir: bool = field(default=False, init=False, repr=False)
     _log_fh: object = field(default=None, init=False, repr=False)
@@ -199,11 +202,11 @@ class Px4Sitl:
         self.workdir.mkdir(parents=True, exist_ok=True)
         bin_dir = make_bin_dir(root / "bin", self.workdir / "bin")
         env = dict(os.environ)
-        env.update(
-            PATH=f"{bin_dir}{os.pathsep}{env.get('PATH', '')}",
-            PX4_SIM_MODEL=SIH_MODEL,
-            PX4_SIMULATOR="sihsim",
-        )
+        env.update(PATH=f"{bin_dir}{os.pathsep}{env.get('PATH', '')}", PX4_SIM_MODEL=self.model)
+        if self.model == SIH_MODEL:
+            env["PX4_SIMULATOR"] = "sihsim"
+        else:  # PX4's rcS then starts simulator_mavlink, which connects to the external simulator
+            env.pop("PX4_SIMULATOR", None)
         for name, value in self.params.items():
             env[f"PX4_PARAM_{name}"] = repr(value) if isinstance(value, float) else str(value)
         self._log_fh = open(self.log_path, "wb", buffering=0)  # noqa: SIM115 - closed in stop()
