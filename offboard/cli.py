@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("offboard.harness.bench_cli", "measure the speed of the plant, controller and estimator"),
     "emulate": ("sim_bridge.emulator_cli", "run the MAVLink autopilot emulator (PX4 or ArduPilot flavour)"),
     "fly": ("offboard.flight.fly_cli", "fly a real or emulated vehicle over MAVLink"),
+    "px4-hil": ("sim_bridge.sitl.px4_hil_cli", "be real PX4 SITL's simulator: a vehicle with a slung load"),
     "demo": ("offboard.harness.demo_cli", "start the emulator and fly the paper scenario end to end"),
     "replay": (
         "offboard.logs.replay_cli",

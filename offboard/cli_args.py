@@ -79,8 +79,8 @@ def add_controller_arguments(p: argparse.ArgumentParser, flight: bool = False) -
     p.add_argument(
         "--vehicle",
         metavar="FILE|NAME",
-        help="vehicle description: a TOML file, or a shipped one (paper-table1, px4-sih, px4-hil-load, ardupilot-sitl-quad); "
-        "default: the paper's Table 1",
+        help="vehicle description: a TOML file, or a shipped one (paper-table1, px4-sih, px4-hil-load, "
+        "ardupilot-sitl-quad); default: the paper's Table 1",
     )
 
 

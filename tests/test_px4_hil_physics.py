@@ -103,3 +103,21 @@ def test_gps_and_truth_put_a_point_north_east_and_up_where_it_is() -> None:
 def test_a_vehicle_without_a_load_is_refused() -> None:
     with pytest.raises(ValueError, match="load"):
         HilVehicle(load_vehicle("px4-sih"))
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--vehicle", "px4-sih"], "carries no load"),
+        (["--instance", "12"], "--instance must be 0..9"),
+        (["--speed", "-1"], "--speed must be >= 0"),
+    ],
+)
+def test_slung_px4_hil_refuses_bad_input_in_one_line(
+    args: list[str], says: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from offboard.cli import main
+
+    assert main(["px4-hil", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert says in err and len(err.splitlines()) == 1
