@@ -65,14 +65,17 @@ def _memory(m: smc.ControllerMemory) -> list[float]:
     return [m.int_z, m.int_psi, m.int_fx, m.int_fy, t, m.dist_x, m.dist_y, m.vel_x, m.vel_y]
 
 
-@pytest.mark.parametrize("load", [True, False])
-def test_attitude_law_equals_the_scalar_law_to_the_last_bit(load: bool) -> None:
+@pytest.mark.parametrize(("load", "drag"), [(True, False), (False, False), (True, True), (False, True)])
+def test_attitude_law_equals_the_scalar_law_to_the_last_bit(load: bool, drag: bool) -> None:
     """3000 ticks of random estimates (small to far off, so the thrust, tilt-rate and tilt limits clip) and
     references at random time steps (some backward), a NaN estimate and an infinite reference among them: every
     command, saturation flag and memory equal ``smc_attitude.step``'s. Without a load the disturbance observer runs
-    (its pole set, its bound reached)."""
+    (its pole set, its bound reached). With the vehicle's drag in the law's model too (SIH's 1 N per m/s)."""
     vehicle = V if load else V.with_changes(mass_load=0.0)
+    if drag:
+        vehicle = vehicle.with_changes(linear_drag=1.0)
     params = cal.sweep_attitude_params(vehicle)
+    assert (cal.attitude_constants(params)[cal.A_DRAG_TILT] > 0.0) == (drag and load)  # the law models it with a load
     if not load:
         params = replace(params, gains=replace(params.gains, wn_d=1.5))
     c, mem = cal.attitude_constants(params), cal.attitude_memory()

@@ -8,9 +8,10 @@ the filter estimates the swing from PX4's IMU and attitude telemetry, as on a ve
 
 Asserted (bounds with room; the figures measured on 6 Dec 2026 are in ``docs/deploy.md`` section 2c and printed):
 the flight completes and is handed over; PX4 answered every sensor step; the load's swing stays far from the
-watchdog's 0.8 rad; the filter's load position (the flat output) follows the truth within 0.15 m RMS; the vehicle
-holds its height; the load comes to rest near the move's end point. Not asserted: the load's tracking of the
-reference during the move (e_Fx 0.33 m RMS in the first flight: docs/deploy.md says what it shows).
+watchdog's 0.8 rad; the filter's load position (the flat output) follows the truth within 0.15 m RMS (0.04-0.07);
+the vehicle holds its height; the load's true path follows the reference within 0.25 m RMS (0.12-0.13 m; 0.35 m
+before the law modelled the vehicle's drag, docs/model.md section 12.7) and comes to rest within 0.15 m of the
+move's end point (0.01 m; 0.28-0.33 m past it before).
 """
 
 from __future__ import annotations
@@ -100,15 +101,20 @@ def test_the_load_is_estimated_and_held_on_real_px4(flight: dict[str, Any]) -> N
     rms = float(np.sqrt(np.mean(err**2)))
     swing_max = float(truth["swing_rad"].max())
     z_err = float(np.max(np.abs(truth["z_m"] - HEIGHT_M)))
+    ref_x = np.interp(truth["t_s"], live["t_vehicle"], live["ref_fx0"])
+    ref_y = np.interp(truth["t_s"], live["t_vehicle"], live["ref_fy0"])
+    tracking = float(np.sqrt(np.mean((truth["load_x_m"] - ref_x) ** 2 + (truth["load_y_m"] - ref_y) ** 2)))
     end = truth["t_s"] >= truth["t_s"][-1] - 3.0
     end_x = float(np.mean(truth["load_x_m"][end]))
     start_x = float(truth["load_x_m"][0])
     print(
         f"\nPX4 with a slung load: load estimate vs truth {rms:.3f} m RMS, "
-        f"peak swing {math.degrees(swing_max):.1f} deg, height error max {z_err:.2f} m, "
+        f"load path vs reference {tracking:.3f} m RMS, peak swing {math.degrees(swing_max):.1f} deg, "
+        f"height error max {z_err:.2f} m, "
         f"load {end_x - start_x:.2f} m along x over the last 3 s (reference {MOVE_M})"
     )
     assert rms < 0.15
     assert swing_max < 0.4  # the watchdog's limit is 0.8 rad
     assert z_err < 0.4
-    assert abs(end_x - start_x - MOVE_M) < 0.5
+    assert tracking < 0.25
+    assert abs(end_x - start_x - MOVE_M) < 0.15

@@ -359,3 +359,25 @@ def test_disturbance_observer_rejects_a_slow_force_better_than_the_integral_alon
         rms[wn_d] = float(np.sqrt(np.mean(log["x"][-5000:, 0] ** 2)))
     assert _params(SIH).gains.wn_d == 0.0  # off unless the vehicle file sets it
     assert rms[wn_f] < 0.5 * rms[0.0], rms
+
+
+def test_the_tilt_that_balances_the_drag_is_an_equilibrium_at_cruise() -> None:
+    """In still air at a steady 1 m/s with the load hanging straight down, the vehicle tilts so that its thrust
+    balances the drag (``k_t v``, ``k_t = k_d / (M_t g)``, in the law's linear chain) and nothing accelerates: with
+    the vehicle file's drag in its model the law holds that tilt; without it (``drag_feedforward=False``, or no
+    drag in the file) the law reads the tilt as an acceleration of the load and takes it back."""
+    from estimators.model.flatness import control_state_from_tilt, flat_constants
+
+    base = load_vehicle("px4-hil-load")
+    assert base.linear_drag == 1.0
+    v, kt = 1.0, base.linear_drag / (base.total_mass * base.gravity)
+    est = control_state_from_tilt(flat_constants(base), (2.0, v, 0.0, 0.0, kt * v, 0.0), (0.0,) * 6, 2.0, 0, 0, 0)
+    ref_fx = (2.0, v, 0.0, 0.0, 0.0, 0.0, 0.0)
+    ref_z = (2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    tilts = []
+    for vehicle, model_drag in ((base, True), (base, False), (base.with_changes(linear_drag=0.0), True)):
+        params = sa.AttitudeParams.for_vehicle(vehicle, sa.InnerLoop(), drag_feedforward=model_drag)
+        cmd, _ = sa.step(1.0, est, ref_fx, ZERO, ref_z, ZERO, ControllerMemory(t=0.99), params)
+        tilts.append(cmd.theta_sp)  # model pitch: thrust tilted toward +x
+    assert tilts[0] == pytest.approx(kt * v, abs=1e-9)
+    assert tilts[1] == tilts[2] < kt * v - 0.005  # the drag's tilt taken back (by 0.3 deg in one tick)

@@ -208,7 +208,11 @@ def fly(
     params: Any = torque_params
     if law == "attitude":
         params = smc_attitude.AttitudeParams.for_vehicle(
-            vehicle, overrides=vehicle_gain_overrides(vehicle), switching=args.switching, tilt_max=mapping.max_tilt
+            vehicle,
+            overrides=vehicle_gain_overrides(vehicle),
+            switching=args.switching,
+            tilt_max=mapping.max_tilt,
+            drag_feedforward=not getattr(args, "external_feedforward", False),  # else the filter's estimate has it
         )
         mapper: CommandMapper = AttitudeLawMapper(vehicle, mapping, AutopilotModel())
     else:

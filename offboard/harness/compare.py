@@ -273,7 +273,17 @@ def controller_as_flown(
 
         config = replace(config, actuators="px4-attitude")
         inner, tilt_max = emulated_inner_loop(nominal, "px4"), MappingConfig().max_tilt
-    law = registry.make(controller, nominal, switching=switching, epsilon=epsilon, inner=inner, tilt_max=tilt_max)
+    # the vehicle's drag in the attitude-level law's model, unless its filter's estimate carries it (fed forward)
+    drag_ff = registry.filter_tuning(controller, config.estimator) is None
+    law = registry.make(
+        controller,
+        nominal,
+        switching=switching,
+        epsilon=epsilon,
+        inner=inner,
+        tilt_max=tilt_max,
+        drag_feedforward=drag_ff,
+    )
     return config, law
 
 

@@ -134,7 +134,11 @@ def replay_ticks(
 
         autopilot = AutopilotModel(**ap_kw)
         params = smc_attitude.AttitudeParams.for_vehicle(
-            vehicle, overrides=dict(vehicle.gains), switching=config.switching, tilt_max=mapping.max_tilt
+            vehicle,
+            overrides=dict(vehicle.gains),
+            switching=config.switching,
+            tilt_max=mapping.max_tilt,
+            drag_feedforward=not (config.external_feedforward and config.estimator == "kf"),
         ).with_inner(inner_loop_of(autopilot))
         mapper: CommandMapper = AttitudeLawMapper(vehicle, mapping, autopilot)
     else:

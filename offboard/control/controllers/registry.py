@@ -66,15 +66,22 @@ def _smc(vehicle: Vehicle, switching: str = "sign", epsilon: float = 1.0, **_: o
 
 
 def _smc_attitude(
-    vehicle: Vehicle, inner: InnerLoop | None = None, tilt_max: float | None = None, **_: object
+    vehicle: Vehicle,
+    inner: InnerLoop | None = None,
+    tilt_max: float | None = None,
+    drag_feedforward: bool = True,
+    **_: object,
 ) -> Controller:
     """The attitude-level law with its own default switching (smooth, as ``slung fly --law attitude``), designed for
     ``inner``, the autopilot loops it flies through (None: :class:`InnerLoop`'s generic defaults; ``slung fly``
-    designs it for the loops it reads from the autopilot), within ``tilt_max`` (rad; None: the law's default)."""
+    designs it for the loops it reads from the autopilot), within ``tilt_max`` (rad; None: the law's default);
+    ``drag_feedforward``: the vehicle's drag in the law's model (``AttitudeParams.drag_feedforward``)."""
     from offboard.control import smc_attitude
     from offboard.control.controllers.sliding_mode import AttitudeSlidingModeController
 
-    kw: dict[str, object] = {} if tilt_max is None else {"tilt_max": tilt_max}
+    kw: dict[str, object] = {"drag_feedforward": drag_feedforward}
+    if tilt_max is not None:
+        kw["tilt_max"] = tilt_max
     params = smc_attitude.AttitudeParams.for_vehicle(
         vehicle, inner=inner, overrides=dict(vehicle.gains), switching="smooth", **kw
     )
@@ -130,14 +137,22 @@ def make(
     epsilon: float = 1.0,
     inner: InnerLoop | None = None,
     tilt_max: float | None = None,
+    drag_feedforward: bool = True,
 ) -> Controller:
     """A fresh controller ``name`` for the nominal ``vehicle``; UserError for an unknown name. ``inner`` and
-    ``tilt_max``: the autopilot loops and tilt limit the attitude-level law (``smc-attitude``) flies behind (the
-    others ignore them)."""
+    ``tilt_max``: the autopilot loops and tilt limit the attitude-level law (``smc-attitude``) flies behind, and
+    ``drag_feedforward`` whether its model has the vehicle's drag (the others ignore them)."""
     factory = CONTROLLERS.get(name)
     if factory is None:
         raise UserError(f"unknown controller {name!r} (known: {', '.join(CONTROLLERS)})")
-    return factory(vehicle, switching=switching, epsilon=epsilon, inner=inner, tilt_max=tilt_max)
+    return factory(
+        vehicle,
+        switching=switching,
+        epsilon=epsilon,
+        inner=inner,
+        tilt_max=tilt_max,
+        drag_feedforward=drag_feedforward,
+    )
 
 
 def not_designed_for(controller: str, vehicle: Vehicle, inner: InnerLoop | None = None) -> str | None:

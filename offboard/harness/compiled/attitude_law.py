@@ -72,7 +72,10 @@ A_RHO_Z, A_REACH_Z, A_RHO_F, A_REACH_F, A_K_PSI, A_RHO_PSI, A_REACH_PSI, A_WN_D 
 A_SMOOTH, A_THRUST_MIN, A_THRUST_MAX, A_TILT_RATE_MAX, A_W_I, A_W_PSI, A_B, A_I = 28, 29, 30, 31, 32, 33, 34, 37
 # the hover command's thrust (N); the observer's longest step (s); 2.0, the exponent of Python's ``x ** 2``
 A_HOVER, A_DIST_STEP, A_TWO = 40, 41, 42
-ATTITUDE_SIZE = 43
+# the tilt that balances the vehicle's drag per m/s (rad per m/s; 0: none in the law's model, smc_attitude._derived:
+# with a load only)
+A_DRAG_TILT = 43
+ATTITUDE_SIZE = 44
 
 # ---- a run's memory (smc.ControllerMemory) ---------------------------------------------------------------------------
 # the error integrals (m s, rad s, m s, m s), the last step's time (s; NaN: none yet), the observer's disturbance
@@ -124,6 +127,7 @@ def attitude_constants(params: AttitudeParams) -> np.ndarray:
     values.update({A_B + i: inner.rate_bandwidth[i] for i in range(3)})
     values.update({A_I + i: v.inertia[i] for i in range(3)})
     values.update({A_HOVER: smc_attitude.hover_command(params).thrust, A_DIST_STEP: DIST_STEP_MAX, A_TWO: 2.0})
+    values[A_DRAG_TILT] = d.drag_tilt
     return pack_constants(ATTITUDE_SIZE, values)
 
 
@@ -222,6 +226,9 @@ def _errors(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray, ref: np.
         for i in range(5):
             ex[i] = est[EST_FX + i] - ref[REF_FX + i]
             ey[i] = est[EST_FY + i] - ref[REF_FY + i]
+        if c[A_DRAG_TILT] > 0.0:  # F^(4) = c (a + n - kt v), v the vehicle's velocity F' - l a'
+            ex[4] = ex[4] - c[A_C] * c[A_DRAG_TILT] * (est[EST_FX + 1] - c[A_L] * est[EST_ALPHA_Y_RATE])
+            ey[4] = ey[4] - c[A_C] * c[A_DRAG_TILT] * (est[EST_FY + 1] - c[A_L] * est[EST_ALPHA_X_RATE])
         obs = (mem[AM_DIST_X], mem[AM_DIST_Y], mem[AM_VEL_X], mem[AM_VEL_Y])
         rates = (-est[EST_FX + 3] / c[A_G], -est[EST_FY + 3] / c[A_G])  # a' = -F'''/g
         return ref[REF_FX + 5], ref[REF_FY + 5], rates, obs
@@ -306,9 +313,11 @@ def attitude_step(
     int_fy = mem[AM_INT_FY] + mem[AM_EY] * dt
     vx_c = _axis(c, mem[AM_EX : AM_EX + 5], int_fx, ffx, smooth)
     vy_c = _axis(c, mem[AM_EY : AM_EY + 5], int_fy, ffy, smooth)
-    ndx, ndy, nsx, nsy, nsz, sat_f = _thrust_direction_setpoint(
-        c, n, vx_c / c[A_C] - rates[0], vy_c / c[A_C] - rates[1]
-    )
+    ndx, ndy = vx_c / c[A_C] - rates[0], vy_c / c[A_C] - rates[1]
+    if c[A_DRAG_TILT] > 0.0:  # the rate of the tilt that balances the drag: kt p*''
+        ndx = ndx + c[A_DRAG_TILT] * ref[REF_FX + 2]
+        ndy = ndy + c[A_DRAG_TILT] * ref[REF_FY + 2]
+    ndx, ndy, nsx, nsy, nsz, sat_f = _thrust_direction_setpoint(c, n, ndx, ndy)
 
     # yaw: the commanded heading rate and the heading setpoint
     e_psi = wrap_angle(psi - ref[REF_PSI])
