@@ -111,6 +111,7 @@ def test_a_vehicle_without_a_load_is_refused() -> None:
         (["--vehicle", "px4-sih"], "carries no load"),
         (["--instance", "12"], "--instance must be 0..9"),
         (["--speed", "-1"], "--speed must be >= 0"),
+        (["--load-sensor", "5000"], "--load-sensor must be 0..1000 Hz"),
     ],
 )
 def test_slung_px4_hil_refuses_bad_input_in_one_line(

@@ -23,6 +23,7 @@ on its clock; the load is only here.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import socket
 import threading
@@ -42,6 +43,8 @@ from sim_bridge.sitl.hil_vehicle import HilVehicle
 HIL_MODEL = "none_iris"
 #: PX4 instance 0's simulator port; instance i adds i
 HIL_PORT_BASE = 4560
+#: PX4 instance 0's ground-station MAVLink port, where the cable-angle sensor's DEBUG_VECT goes; instance i adds i
+PX4_MAVLINK_PORT_BASE = 18570
 #: the truth CSV's columns (see the module docstring)
 TRUTH_COLUMNS = (
     "t_s",
@@ -101,7 +104,10 @@ class Px4HilServer:
     vehicle: the TRUE vehicle with its load; instance: PX4's instance (port 4560 + instance); seed: the sensor
     noise's; sensor_hz: HIL_SENSOR rate (PX4's IMU_INTEG_RATE for simulators is 250 Hz); plant_dt: the plant's
     step (s); speed: the simulation's pace against the wall clock (None: as fast as PX4 answers); truth_path: the
-    truth CSV (None: none); initial_swing_rad: the load's swing at the start, about the world y axis (rad).
+    truth CSV (None: none); initial_swing_rad: the load's swing at the start, about the world y axis (rad);
+    load_sensor_hz: a cable-angle sensor's rate (0: none): DEBUG_VECT "LOADANG" (the emulator's convention) sent to
+    PX4's ground-station MAVLink port 18570 + instance as a peripheral of the vehicle (system 1, component 158),
+    which PX4 publishes as its ``debug_vect`` and streams on to the companion when asked (``slung fly`` asks).
     """
 
     def __init__(
@@ -120,6 +126,7 @@ class Px4HilServer:
         answer_timeout_s: float = 2.0,
         initial_swing_rad: float = 0.0,
         speed: float | None = 1.0,
+        load_sensor_hz: float = 0.0,
     ) -> None:
         if speed is not None and not speed > 0.0:
             raise ValueError(f"speed must be > 0 (or None: as fast as PX4 answers), got {speed}")
@@ -145,6 +152,12 @@ class Px4HilServer:
         self._listener: socket.socket | None = None
         self._mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=51)
         self._mav.robust_parsing = True
+        #: the cable-angle sensor: DEBUG_VECT "LOADANG" to PX4's MAVLink port (a peripheral of the vehicle, which
+        #: PX4 publishes as its debug_vect and streams on to the companion as DEBUG_VECT); every load_every periods
+        self.load_every = max(1, round(sensor_hz / load_sensor_hz)) if load_sensor_hz > 0.0 else 0
+        self._load_mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=mavlink2.MAV_COMP_ID_PERIPHERAL)
+        self._load_addr = ("127.0.0.1", PX4_MAVLINK_PORT_BASE + instance)
+        self._load_sock: socket.socket | None = None
 
     # --------------------------------------------------------------------------------------------- lifetime ---
     def listen(self) -> None:
@@ -172,6 +185,9 @@ class Px4HilServer:
         if self._listener is not None:
             self._listener.close()
             self._listener = None
+        if self._load_sock is not None:
+            self._load_sock.close()
+            self._load_sock = None
 
     def __enter__(self) -> Px4HilServer:
         return self.start()
@@ -228,6 +244,8 @@ class Px4HilServer:
             if step % self.truth_every == 0:
                 out.append(sensors.ground_truth(mav, t_us))
             conn.sendall(b"".join(m.pack(mav) for m in out))
+            if self.load_every and step % self.load_every == 0:
+                self._send_load_angle(t_us)
             if answered_once:
                 if not self._await_answer(conn):
                     self.stats.missed_answers += 1
@@ -247,6 +265,20 @@ class Px4HilServer:
             self.stats.max_swing_rad = max(self.stats.max_swing_rad, swing if plant.x[2] > 0.05 else 0.0)
             if truth is not None and step % self.truth_every == 0:
                 truth.write(self._truth_row(self.stats.sim_time_s, swing) + "\n")
+
+    def _send_load_angle(self, t_us: int) -> None:
+        """The cable's angles as the emulator's cable-angle sensor reports them (``docs/emulator.md``): x in the
+        North-Down plane ``atan2(r_N, r_D)``, y in the East-Down plane ``atan2(r_E, r_D)``, z the total swing, rad."""
+        if self._load_sock is None:
+            self._load_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self._load_sock.setblocking(False)
+        x = self.plant.x
+        r_n, r_e, r_d = x[12], -x[13], -x[14]  # model NWU -> NED
+        msg = self._load_mav.debug_vect_encode(
+            b"LOADANG", t_us, math.atan2(r_n, r_d), math.atan2(r_e, r_d), self.plant.swing()
+        )
+        with contextlib.suppress(OSError):  # PX4 not listening yet: the sample is lost, as on a real bus
+            self._load_sock.sendto(msg.pack(self._load_mav), self._load_addr)
 
     def _await_answer(self, conn: socket.socket) -> bool:
         """Read until PX4's next HIL_ACTUATOR_CONTROLS (True) or the answer time-out (False)."""

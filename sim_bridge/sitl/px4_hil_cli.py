@@ -5,6 +5,7 @@ Examples::
     slung px4-hil --px4                              # start PX4 SITL (../shared/px4-sitl) too; Ctrl-C ends both
     slung fly --connect udpin:127.0.0.1:14540 --vehicle px4-hil-load --scenario hover --out flight   # another shell
     slung px4-hil --instance 2 --truth truth.csv     # serve a PX4 started by hand with PX4_SIM_MODEL=none_iris
+    slung px4-hil --px4 --load-sensor 100            # with a cable-angle sensor whose readings PX4 forwards
 
 Without ``--px4`` it waits for a PX4 whose ``simulator_mavlink`` connects to TCP 4560 + instance (PX4 SITL started
 with ``PX4_SIM_MODEL=none_iris``, and the parameters it prints set, so that PX4's allocator has the physics'
@@ -40,6 +41,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (0)")
     parser.add_argument("--swing", type=float, default=0.0, metavar="RAD", help="the load's initial swing (0)")
     parser.add_argument(
+        "--load-sensor",
+        type=float,
+        default=0.0,
+        metavar="HZ",
+        help="a cable-angle sensor on the vehicle: DEBUG_VECT LOADANG to PX4's MAVLink port at HZ, which PX4 streams "
+        "on to the companion (0: none, the default: the swing from PX4's IMU alone)",
+    )
+    parser.add_argument(
         "--speed", type=float, default=1.0, help="simulated seconds per wall second (1; 0: as fast as PX4 answers)"
     )
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S simulated seconds")
@@ -51,6 +60,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--instance must be 0..9, got {args.instance}")
     if args.speed < 0.0 or args.speed != args.speed:
         raise UserError(f"--speed must be >= 0, got {args.speed}")
+    if not 0.0 <= args.load_sensor <= 1000.0:
+        raise UserError(f"--load-sensor must be 0..1000 Hz, got {args.load_sensor}")
     vehicle = load_vehicle(args.vehicle)
     if not vehicle.mass_load > 0.0:
         raise UserError(f"vehicle {vehicle.name!r} carries no load: px4-hil simulates one (try px4-hil-load)")
@@ -61,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
         truth_path=args.truth,
         initial_swing_rad=args.swing,
         speed=args.speed or None,
+        load_sensor_hz=args.load_sensor,
     )
     try:
         server.listen()
