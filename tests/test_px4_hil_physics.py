@@ -14,7 +14,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from estimators.model.frames import STANDARD_GRAVITY
 from estimators.model.vehicle import load_vehicle
 from sim_bridge.sitl.hil_sensors import HOME, MAG_FIELD_NED, HilNoise, HilSensors, lat_lon, pressure_hpa
-from sim_bridge.sitl.hil_vehicle import HilVehicle, rotor_wrench
+from sim_bridge.sitl.hil_vehicle import HilVehicle
 from sim_bridge.sitl.px4_hil import hil_params
 
 VEHICLE = load_vehicle("px4-hil-load")
@@ -29,13 +29,15 @@ def test_rotor_torques_follow_px4_effectiveness() -> None:
     model body is FLU (y and z negated)."""
     a = VEHICLE.arm_length / math.sqrt(2.0)
     c = VEHICLE.yaw_moment_coefficient
-    thrust, tx, ty, tz = rotor_wrench(VEHICLE, (1.0, 0.0, 0.0, 0.0))  # rotor 0: front right, KM > 0
+    plant = HilVehicle(VEHICLE)
+    plant.motors.f = [1.0, 0.0, 0.0, 0.0]  # rotor 0: front right, KM > 0
+    thrust, tx, ty, tz = plant.wrench()
     assert thrust == 1.0
     assert (tx, ty, tz) == pytest.approx((-a, -a, -c))  # FRD (-a, +a, +c): right side up, nose up, yaw right
-    _, tx, ty, tz = rotor_wrench(VEHICLE, (0.0, 0.0, 1.0, 0.0))  # rotor 2: front left, KM < 0
-    assert (tx, ty, tz) == pytest.approx((a, -a, c))
-    _, tx, ty, tz = rotor_wrench(VEHICLE, (2.0, 2.0, 2.0, 2.0))  # equal thrusts: no torque
-    assert (tx, ty, tz) == pytest.approx((0.0, 0.0, 0.0))
+    plant.motors.f = [0.0, 0.0, 1.0, 0.0]  # rotor 2: front left, KM < 0
+    assert plant.wrench()[1:] == pytest.approx((a, -a, c))
+    plant.motors.f = [2.0, 2.0, 2.0, 2.0]  # equal thrusts: no torque
+    assert plant.wrench()[1:] == pytest.approx((0.0, 0.0, 0.0))
 
 
 def test_px4_is_given_the_same_layout() -> None:
@@ -95,7 +97,7 @@ def test_gps_and_truth_put_a_point_north_east_and_up_where_it_is() -> None:
     assert g.fix_type == 3
     t = sensors.ground_truth(_mav(), 1_000_000)
     assert (t.vx, t.vy, t.vz) == (100, 200, -50)
-    assert t.zacc == round(-VEHICLE.gravity / STANDARD_GRAVITY * 1000) or plant.on_ground
+    assert (t.xacc, t.yacc, t.zacc) == (0, 0, round(-VEHICLE.gravity / STANDARD_GRAVITY * 1000))  # at rest
     # 100 m north is 100 m on PX4's own sphere to within its radius' 0.1 %
     assert (g.lat - round(HOME.lat_deg * 1e7)) * 1e-7 * math.pi / 180 * 6371000.0 == pytest.approx(100.0, rel=2e-3)
 
@@ -112,6 +114,9 @@ def test_a_vehicle_without_a_load_is_refused() -> None:
         (["--instance", "12"], "--instance must be 0..9"),
         (["--speed", "-1"], "--speed must be >= 0"),
         (["--load-sensor", "5000"], "--load-sensor must be 0..1000 Hz"),
+        (["--swing", "nan"], "--swing must be a finite angle"),
+        (["--duration", "inf"], "--duration must be a finite number"),
+        (["--truth", "/nonexistent-dir/truth.csv"], "cannot write the truth file"),
     ],
 )
 def test_slung_px4_hil_refuses_bad_input_in_one_line(

@@ -381,3 +381,23 @@ def test_the_tilt_that_balances_the_drag_is_an_equilibrium_at_cruise() -> None:
         tilts.append(cmd.theta_sp)  # model pitch: thrust tilted toward +x
     assert tilts[0] == pytest.approx(kt * v, abs=1e-9)
     assert tilts[1] == tilts[2] < kt * v - 0.005  # the drag's tilt taken back (by 0.3 deg in one tick)
+
+
+def test_the_drag_adds_the_rate_of_its_tilt_for_the_references_acceleration() -> None:
+    """At rest (no drag yet) under a reference that accelerates at 1 m/s^2, the law with the drag in its model asks
+    for the tilt rate ``k_t F*''`` more than the law without, which the attitude setpoint shows as ``k_t F*'' / w_i``
+    more thrust direction toward +x (``n_sp = n + n'_c / w_i``)."""
+    from estimators.model.flatness import control_state_from_tilt, flat_constants
+
+    base = load_vehicle("px4-hil-load")
+    kt, accel = base.linear_drag / (base.total_mass * base.gravity), 1.0
+    est = control_state_from_tilt(flat_constants(base), (0.0,) * 6, (0.0,) * 6, 2.0, 0.0, 0.0, 0.0)
+    ref_fx = (0.0, 0.0, accel, 0.0, 0.0, 0.0, 0.0)
+    ref_z = (2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    n_sp = []
+    for model_drag in (True, False):
+        params = sa.AttitudeParams.for_vehicle(base, sa.InnerLoop(), drag_feedforward=model_drag)
+        cmd, _ = sa.step(1.0, est, ref_fx, ZERO, ref_z, ZERO, ControllerMemory(t=0.99), params)
+        assert not cmd.saturated
+        n_sp.append(math.sin(cmd.theta_sp))  # level roll: the setpoint's thrust direction toward +x
+    assert n_sp[0] - n_sp[1] == pytest.approx(kt * accel / sa.InnerLoop().attitude_bandwidth, rel=1e-9)

@@ -272,6 +272,8 @@ def write_flight_outputs(
                 "estimator_load_sensor": bool(estimator_config["load_sensor"]),
                 "delay_s": float(estimator_config["delay_s"]),
                 "external_feedforward": bool(estimator_config.get("external_feedforward", False)),
+                # the attitude-level law modelled the vehicle's drag (AttitudeParams.drag_feedforward)
+                "drag_feedforward": bool(estimator_config.get("drag_feedforward", False)),
             }
         )
     m["loop"] = {

@@ -29,6 +29,7 @@ from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle, load_vehicle
 from offboard.cli_args import feedforward_tuning
 from offboard.control import smc, smc_attitude
+from offboard.control.controllers.registry import drag_in_law
 from offboard.flight.attitude_mapping import AttitudeLawMapper
 from offboard.flight.command_mapping import CommandMapper, MappingConfig
 from offboard.flight.flight_law import resolve_law, resolve_switching, torque_fallback, vehicle_gain_overrides
@@ -212,7 +213,7 @@ def fly(
             overrides=vehicle_gain_overrides(vehicle),
             switching=args.switching,
             tilt_max=mapping.max_tilt,
-            drag_feedforward=not getattr(args, "external_feedforward", False),  # else the filter's estimate has it
+            drag_feedforward=drag_in_law(feedforward_tuning(args)),
         )
         mapper: CommandMapper = AttitudeLawMapper(vehicle, mapping, AutopilotModel())
     else:
@@ -336,6 +337,7 @@ def fly(
             "load_sensor": load_sensor,
             "delay_s": result.filter_delay_s or ESTIMATOR_DELAY_S,
             "external_feedforward": tuning is not None,
+            "drag_feedforward": law == "attitude" and drag_in_law(tuning),
         },
         feasibility=feasibility,
         on_log=on_log,

@@ -274,7 +274,7 @@ def controller_as_flown(
         config = replace(config, actuators="px4-attitude")
         inner, tilt_max = emulated_inner_loop(nominal, "px4"), MappingConfig().max_tilt
     # the vehicle's drag in the attitude-level law's model, unless its filter's estimate carries it (fed forward)
-    drag_ff = registry.filter_tuning(controller, config.estimator) is None
+    drag_ff = registry.drag_in_law(registry.filter_tuning(controller, config.estimator))
     law = registry.make(
         controller,
         nominal,

@@ -190,6 +190,9 @@ def build_config(args: argparse.Namespace, meta: dict[str, Any], live: Any = Non
     # the live run's filter fed the external acceleration forward (--external-feedforward)
     if cfg.get("external_feedforward") is True:
         extra["external_feedforward"] = True
+    # whether the live run's attitude-level law modelled the vehicle's drag (runs recorded before it: not)
+    if meta:
+        extra["drag_feedforward"] = cfg.get("drag_feedforward") is True
     # the live run's per-loop boundary layers (runs recorded before them used epsilon for all loops)
     layers = cfg.get("layer_errors")
     if switching == "smooth" and isinstance(layers, list) and len(layers) == 3:

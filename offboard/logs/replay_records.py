@@ -151,6 +151,9 @@ class ReplayConfig:
     gain_scale: float = 1.0
     shared_roll_pitch: bool = False
     external_feedforward: bool = False
+    #: the attitude-level law models the vehicle's drag (None: as ``slung fly`` would now, ``registry.drag_in_law``;
+    #: a slung flight recorded before the term existed flew without it: False)
+    drag_feedforward: bool | None = None
     output: str | None = None
     mask: str | None = None
     mapping: dict[str, Any] | None = None

@@ -130,7 +130,9 @@ def replay_ticks(
     mapping = MappingConfig(**{"output": output, "mask": mask, **(config.mapping or {})})
     if config.law == "attitude":  # as the live loop builds it (offboard.flight.fly_cli.fly, FlightLoop.run)
         from offboard.control import smc_attitude
+        from offboard.control.controllers import registry
         from offboard.flight.attitude_mapping import AttitudeLawMapper, inner_loop_of
+        from offboard.logs.replay import live_tuning
 
         autopilot = AutopilotModel(**ap_kw)
         params = smc_attitude.AttitudeParams.for_vehicle(
@@ -138,7 +140,11 @@ def replay_ticks(
             overrides=dict(vehicle.gains),
             switching=config.switching,
             tilt_max=mapping.max_tilt,
-            drag_feedforward=not (config.external_feedforward and config.estimator == "kf"),
+            drag_feedforward=(
+                registry.drag_in_law(live_tuning(config))
+                if config.drag_feedforward is None
+                else config.drag_feedforward
+            ),
         ).with_inner(inner_loop_of(autopilot))
         mapper: CommandMapper = AttitudeLawMapper(vehicle, mapping, autopilot)
     else:

@@ -6,11 +6,11 @@ which PX4's own SIH cannot simulate.
 
 Rotors: PX4's four motor outputs (0..1, HIL_ACTUATOR_CONTROLS ``controls[0:4]``) are thrusts ``T_i = T_max u_i``
 (linear in the output: PX4's THR_MDL_FAC 0, which the launcher sets) through a first-order lag of the vehicle's
-``motor_time_constant``. The rotors sit as PX4's square X numbering has them (airframe 10040's layout, the one the
-launcher gives PX4's allocator): rotor 0 front right, 1 rear left, 2 front left, 3 rear right, at the vehicle's
-``arm_length`` from the centre; rotors 0 and 1 have a positive moment coefficient (``CA_ROTORi_KM`` > 0: a
-reaction torque ``+c T`` about body FRD z), 2 and 3 a negative one. In body FRD a rotor at ``(px, py)`` pushing
-``T`` up (``-z``) makes the torque ``(-py T, px T, km c T)``.
+``motor_time_constant``: ``sim_bridge.inner.px4_inner.Px4Motors``, the emulator's own model of PX4's motors, with the
+rotors where PX4's numbering puts them for the vehicle's frame (``quad_rotors``: for X airframe 10040's layout,
+rotor 0 front right, 1 rear left, 2 front left, 3 rear right, the one the launcher gives PX4's allocator) at the
+vehicle's ``arm_length``. In body FRD a rotor at ``(px, py)`` pushing ``T`` up (``-z``) makes the torque
+``(-py T, px T, s c T)``, ``s`` the sign of its ``CA_ROTORi_KM``.
 
 Ground: the vehicle rests on the plane z = 0 (model NWU) on landing gear tall enough for the load to hang free (as
 ``sim_bridge.emulator``); it lifts off when the thrust exceeds the total weight, and a descent through z = 0 puts it
@@ -25,29 +25,10 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+from estimators.model.frames import frd_to_model_body
 from estimators.model.vehicle import Vehicle
+from sim_bridge.inner.px4_inner import Px4Motors, quad_rotors
 from sim_bridge.plant.dynamics import apply_drag, derivative, make_state, plant_params, rk4_step, tension
-
-#: PX4's square X layout (``CA_ROTORi_PX``, ``CA_ROTORi_PY`` as unit signs, FRD) and each rotor's moment sign
-#: (``CA_ROTORi_KM``'s sign): the launcher gives PX4's allocator exactly this
-ROTOR_LAYOUT: tuple[tuple[float, float, float], ...] = (
-    (1.0, 1.0, 1.0),
-    (-1.0, -1.0, 1.0),
-    (1.0, -1.0, -1.0),
-    (-1.0, 1.0, -1.0),
-)
-
-
-def rotor_wrench(vehicle: Vehicle, thrusts: Sequence[float]) -> tuple[float, float, float, float]:
-    """Collective thrust (N, along body up) and torques (N m, body **FLU**) of the four rotors' thrusts (N)."""
-    a = vehicle.arm_length / math.sqrt(2.0)  # the perpendicular arm of an X frame
-    c = vehicle.yaw_moment_coefficient
-    tx = ty = tz = 0.0
-    for (sx, sy, km), t in zip(ROTOR_LAYOUT, thrusts, strict=True):
-        tx += -sy * a * t  # FRD torque (-py T, px T, km c T) ...
-        ty += sx * a * t
-        tz += km * c * t
-    return sum(thrusts), tx, -ty, -tz  # ... to FLU: (x, -y, -z)
 
 
 class HilVehicle:
@@ -59,28 +40,28 @@ class HilVehicle:
     def __init__(self, vehicle: Vehicle, plant_dt: float = 0.001) -> None:
         if not vehicle.mass_load > 0.0:
             raise ValueError("the HIL physics needs a vehicle with a load (mass_load > 0)")
-        if vehicle.frame != "x":
-            raise ValueError(f"the HIL physics flies PX4's X layout; the vehicle's frame is {vehicle.frame!r}")
         self.vehicle = vehicle
+        self.motors = Px4Motors(vehicle, quad_rotors(vehicle.frame), plant_dt)
         self.p = plant_params(vehicle, "rigid")
         self.h = plant_dt
         self.x = make_state()
         self.u = [0.0] * 13
-        self.thrusts = [0.0, 0.0, 0.0, 0.0]
         self.on_ground = True
         self.weight = vehicle.total_mass * vehicle.gravity
-        tau = vehicle.motor_time_constant
-        self._lag = 1.0 if tau <= 0.0 else 1.0 - math.exp(-plant_dt / tau)
+
+    def wrench(self) -> tuple[float, float, float, float]:
+        """The rotors' collective thrust (N, along body up) and torques (N m, body **FLU**) now."""
+        thrust, rx, ry, rz = self.motors.wrench_frd()
+        return (thrust, *frd_to_model_body(rx, ry, rz))
 
     def step(self, outputs: Sequence[float], n: int = 1) -> None:
-        """Advance ``n`` plant steps with PX4's motor outputs ``outputs`` (4, each clipped to 0..1) held."""
-        t_max = self.vehicle.motor_thrust_max
-        cmd = [t_max * min(1.0, max(0.0, float(o))) if math.isfinite(o) else 0.0 for o in outputs[:4]]
+        """Advance ``n`` plant steps with PX4's motor outputs ``outputs`` (4, each clipped to 0..1; not finite: 0)
+        held."""
+        self.motors.command([float(o) if math.isfinite(o) else 0.0 for o in outputs[:4]])
         v = self.vehicle
         for _ in range(n):
-            for i in range(4):
-                self.thrusts[i] += self._lag * (cmd[i] - self.thrusts[i])
-            thrust, tx, ty, tz = rotor_wrench(v, self.thrusts)
+            thrust, rx, ry, rz = self.motors.step()
+            tx, ty, tz = frd_to_model_body(rx, ry, rz)
             u = self.u
             u[0], u[1], u[2], u[3] = thrust, tx, ty, tz
             apply_drag(u, self.x, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), v.linear_drag, v.angular_drag)
@@ -117,4 +98,4 @@ class HilVehicle:
         return tension(self.x, self.u, self.p)
 
 
-__all__ = ["ROTOR_LAYOUT", "HilVehicle", "rotor_wrench"]
+__all__ = ["HilVehicle"]

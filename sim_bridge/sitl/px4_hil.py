@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import select
 import socket
 import threading
 import time
@@ -35,7 +36,9 @@ from typing import IO
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from estimators.model.frames import model_to_ned_vector
 from estimators.model.vehicle import Vehicle
+from sim_bridge.inner.px4_inner import quad_rotors
 from sim_bridge.sitl.hil_sensors import HilNoise, HilSensors
 from sim_bridge.sitl.hil_vehicle import HilVehicle
 
@@ -71,13 +74,14 @@ TRUTH_COLUMNS = (
 
 
 def hil_params(vehicle: Vehicle) -> dict[str, float]:
-    """The PX4 parameters that make PX4's model of the airframe the HIL physics' (``Px4Sitl(params=...)``): the
-    rotor layout (square X in PX4's numbering, unit arms as airframe 10040 gives its allocator; the physical arm
-    is the vehicle's), thrust linear in the motor output, and the hover thrust of the vehicle with its load."""
+    """The PX4 parameters that give PX4's allocator the HIL physics' airframe (``Px4Sitl(params=...)``): the rotors
+    where the physics has them (``quad_rotors`` of the vehicle's frame: for X airframe 10040's normalized layout,
+    whose directions and spins are the physics'; PX4 normalizes the effectiveness, so the unit arms and KM 0.05
+    stand for the vehicle's arm and moment coefficient as they do for SIH), thrust linear in the motor output, and
+    the hover thrust of the vehicle with its load."""
     params: dict[str, float] = {"CA_ROTOR_COUNT": 4, "THR_MDL_FAC": 0.0}
-    layout = ((1, 1, 0.05), (-1, -1, 0.05), (1, -1, -0.05), (-1, 1, -0.05))
-    for i, (px, py, km) in enumerate(layout):
-        params[f"CA_ROTOR{i}_PX"], params[f"CA_ROTOR{i}_PY"], params[f"CA_ROTOR{i}_KM"] = float(px), float(py), km
+    for i, r in enumerate(quad_rotors(vehicle.frame)):
+        params[f"CA_ROTOR{i}_PX"], params[f"CA_ROTOR{i}_PY"], params[f"CA_ROTOR{i}_KM"] = r.px, r.py, r.km
     hover = vehicle.total_mass * vehicle.gravity / (4.0 * vehicle.motor_thrust_max)
     params["MPC_THR_HOVER"] = round(min(0.8, max(0.1, hover)), 3)
     return params
@@ -104,7 +108,8 @@ class Px4HilServer:
     vehicle: the TRUE vehicle with its load; instance: PX4's instance (port 4560 + instance); seed: the sensor
     noise's; sensor_hz: HIL_SENSOR rate (PX4's IMU_INTEG_RATE for simulators is 250 Hz); plant_dt: the plant's
     step (s); speed: the simulation's pace against the wall clock (None: as fast as PX4 answers); truth_path: the
-    truth CSV (None: none); initial_swing_rad: the load's swing at the start, about the world y axis (rad);
+    truth CSV (None: none); initial_swing_rad: the load's swing at the start, toward north (rad; it stays so on
+    the ground until the lift-off, and a landing hangs the load straight down again);
     load_sensor_hz: a cable-angle sensor's rate (0: none): DEBUG_VECT "LOADANG" (the emulator's convention) sent to
     PX4's ground-station MAVLink port 18570 + instance as a peripheral of the vehicle (system 1, component 158),
     which PX4 publishes as its ``debug_vect`` and streams on to the companion when asked (``slung fly`` asks).
@@ -140,6 +145,8 @@ class Px4HilServer:
         self.port = HIL_PORT_BASE + instance
         self.period_us = round(1e6 / sensor_hz)
         self.substeps = max(1, round(self.period_us * 1e-6 / plant_dt))
+        if abs(self.substeps * plant_dt - self.period_us * 1e-6) > 1e-9:
+            raise ValueError(f"plant_dt {plant_dt} s does not divide the sensor period {self.period_us} us")
         self.gps_every = max(1, round(sensor_hz / gps_hz))
         self.mag_baro_every = max(1, round(sensor_hz / mag_baro_hz))
         self.truth_every = max(1, round(sensor_hz / truth_hz))
@@ -158,8 +165,21 @@ class Px4HilServer:
         self._load_mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=mavlink2.MAV_COMP_ID_PERIPHERAL)
         self._load_addr = ("127.0.0.1", PX4_MAVLINK_PORT_BASE + instance)
         self._load_sock: socket.socket | None = None
+        self._truth: IO[str] | None = None
 
     # --------------------------------------------------------------------------------------------- lifetime ---
+    @property
+    def running(self) -> bool:
+        """Whether the service thread is alive (it ends on :meth:`stop`, when PX4 closes the link, or on a fault:
+        ``stats.error``)."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def open_truth(self) -> None:
+        """Create the truth CSV now (OSError if it cannot be written), so that a bad path fails before PX4 starts."""
+        if self.truth_path is not None and self._truth is None:
+            self._truth = open(self.truth_path, "w", encoding="utf-8", buffering=1)  # noqa: SIM115 - closed in serve
+            self._truth.write(",".join(TRUTH_COLUMNS) + "\n")
+
     def listen(self) -> None:
         """Open the TCP port PX4 connects to (before PX4 starts, so that its first attempt succeeds)."""
         s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -171,6 +191,7 @@ class Px4HilServer:
 
     def start(self) -> Px4HilServer:
         """Listen and serve in a background thread (:meth:`stop` ends it)."""
+        self.open_truth()
         if self._listener is None:
             self.listen()
         self._thread = threading.Thread(target=self.serve, name=f"px4-hil-{self.port}", daemon=True)
@@ -213,22 +234,23 @@ class Px4HilServer:
         if conn is None:
             return
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        conn.setblocking(True)  # sends block; reads wait in select (_read)
         self.stats.connected = True
-        truth: IO[str] | None = None
         try:
-            if self.truth_path is not None:
-                truth = open(self.truth_path, "w", encoding="utf-8", buffering=1)  # noqa: SIM115 - closed below
-                truth.write(",".join(TRUTH_COLUMNS) + "\n")
-            self._loop(conn, truth)
+            self.open_truth()
+            self._loop(conn, self._truth)
         except ConnectionError:  # PX4 stopped: the end of the simulation, not a fault
             self.stats.events.append(f"{self.stats.sim_time_s:.3f} s: PX4 closed the link")
         except OSError as e:
             if not self._stop.is_set():
                 self.stats.error = f"PX4's simulator link: {e}"
+        except Exception as e:
+            self.stats.error = f"the simulation stopped at {self.stats.sim_time_s:.3f} s: {type(e).__name__}: {e}"
         finally:
             conn.close()
-            if truth is not None:
-                truth.close()
+            if self._truth is not None:
+                self._truth.close()
+                self._truth = None
 
     def _loop(self, conn: socket.socket, truth: IO[str] | None) -> None:
         mav, sensors, plant = self._mav, self.sensors, self.plant
@@ -273,7 +295,7 @@ class Px4HilServer:
             self._load_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             self._load_sock.setblocking(False)
         x = self.plant.x
-        r_n, r_e, r_d = x[12], -x[13], -x[14]  # model NWU -> NED
+        r_n, r_e, r_d = model_to_ned_vector(x[12], x[13], x[14])
         msg = self._load_mav.debug_vect_encode(
             b"LOADANG", t_us, math.atan2(r_n, r_d), math.atan2(r_e, r_d), self.plant.swing()
         )
@@ -288,16 +310,15 @@ class Px4HilServer:
             left = deadline - time.monotonic()
             if left <= 0.0:
                 return False
-            self._read(conn, left, until_answer=before)
+            self._read(conn, min(left, 0.2))  # wake now and then to see stop()
         return self.stats.answers > before
 
-    def _read(self, conn: socket.socket, timeout_s: float, until_answer: int | None = None) -> None:
-        """Parse what PX4 sent within ``timeout_s`` (returns early once an answer beyond ``until_answer`` came)."""
-        conn.settimeout(timeout_s if timeout_s > 0.0 else 0.0)
-        try:
-            data = conn.recv(65536)
-        except (TimeoutError, BlockingIOError):
+    def _read(self, conn: socket.socket, timeout_s: float) -> None:
+        """Parse what PX4 sent, waiting up to ``timeout_s`` for it (0: only what is there)."""
+        ready, _, _ = select.select([conn], [], [], max(0.0, timeout_s))
+        if not ready:
             return
+        data = conn.recv(65536)
         if not data:
             raise ConnectionError("PX4 closed the simulator link")
         for msg in self._mav.parse_buffer(data) or []:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import signal
 import threading
 import time
@@ -62,6 +63,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--speed must be >= 0, got {args.speed}")
     if not 0.0 <= args.load_sensor <= 1000.0:
         raise UserError(f"--load-sensor must be 0..1000 Hz, got {args.load_sensor}")
+    if not abs(args.swing) < 1.5:
+        raise UserError(f"--swing must be a finite angle within +-1.5 rad, got {args.swing}")
+    if args.duration is not None and not 0.0 < args.duration < math.inf:
+        raise UserError(f"--duration must be a finite number of seconds > 0, got {args.duration}")
     vehicle = load_vehicle(args.vehicle)
     if not vehicle.mass_load > 0.0:
         raise UserError(f"vehicle {vehicle.name!r} carries no load: px4-hil simulates one (try px4-hil-load)")
@@ -74,6 +79,10 @@ def run(args: argparse.Namespace) -> int:
         speed=args.speed or None,
         load_sensor_hz=args.load_sensor,
     )
+    try:
+        server.open_truth()
+    except OSError as e:
+        raise UserError(f"cannot write the truth file {args.truth}: {e.strerror or e}") from None
     try:
         server.listen()
     except OSError as e:
@@ -98,8 +107,8 @@ def run(args: argparse.Namespace) -> int:
         while not stop.is_set():
             if args.duration is not None and server.stats.sim_time_s >= args.duration:
                 break
-            if server.stats.error is not None or (sitl is not None and not sitl.running):
-                break
+            if not server.running or (sitl is not None and not sitl.running):
+                break  # PX4 closed the link, or a fault (stats.error), or PX4 exited
             time.sleep(0.1)
     finally:
         server.stop()  # first: PX4 stopping first would leave the server waiting for an answer

@@ -1,4 +1,5 @@
-"""Start and stop a real PX4 SITL autopilot (the prebuilt build with its SIH quadrotor, ``shared/px4-sitl``).
+"""Start and stop a real PX4 SITL autopilot (the prebuilt build, ``shared/px4-sitl``): with its SIH quadrotor, or
+with an external simulator (``Px4Sitl(model=px4_hil.HIL_MODEL)``: ``sim_bridge.sitl.px4_hil``, a vehicle with a load).
 
 This is a test and benchmark harness, not the flight path: ``slung fly`` talks to whatever autopilot listens on
 the link; this module only starts one on this machine. The real PX4 is the reference the emulator imitates.
@@ -118,7 +119,7 @@ def _is_flattened_alias(path: Path) -> bool:
 
 @dataclass
 class Px4Sitl:
-    """One PX4 SITL instance with the SIH quadrotor (see the module docstring).
+    """One PX4 SITL instance with the SIH quadrotor or an external simulator (``model``; see the module docstring).
 
     instance: 0-9 (ports and system id shift by it); workdir: parameters, dataman, logs (a new temporary folder
     when None, kept after stop so that the ULogs can be read; removed by :meth:`cleanup`); params: parameters set at

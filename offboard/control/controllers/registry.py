@@ -59,6 +59,14 @@ def filter_tuning(controller: str, estimator: str = "kf") -> object | None:
     return FEEDFORWARD_TUNING
 
 
+def drag_in_law(tuning: object | None) -> bool:
+    """Whether the attitude-level law models the vehicle file's drag (``AttitudeParams.drag_feedforward``) beside a
+    filter built with ``tuning`` (None: the defaults, or no filter): not where the filter feeds its external
+    acceleration forward, whose estimate carries the drag (both together counted it twice, docs/model.md §12.7).
+    The one place fly, replay, compare and sweep (scalar and compiled) decide it."""
+    return not bool(getattr(tuning, "external_feedforward", False))
+
+
 def _smc(vehicle: Vehicle, switching: str = "sign", epsilon: float = 1.0, **_: object) -> Controller:
     from offboard.control.controllers.sliding_mode import SlidingModeController
 

@@ -19,6 +19,7 @@ the memory, as does a non-finite result.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -92,16 +93,17 @@ COMMAND_SIZE = 7
 
 
 # ---- Python side -----------------------------------------------------------------------------------------------------
-def sweep_attitude_params(nominal: Vehicle) -> AttitudeParams:
+def sweep_attitude_params(nominal: Vehicle, drag_feedforward: bool = True) -> AttitudeParams:
     """The law as ``slung sweep`` flies it on the ``nominal`` vehicle (``compare.controller_as_flown``: designed for
-    the inner loops ``emulated_inner_loop(nominal, "px4")`` reports, within ``MappingConfig().max_tilt``)."""
+    the inner loops ``emulated_inner_loop(nominal, "px4")`` reports, within ``MappingConfig().max_tilt``), with the
+    vehicle's drag in its model or not (``registry.drag_in_law`` of the run's filter tuning)."""
     from offboard.harness.compare import controller_as_flown
     from offboard.logs.runlog import SimConfig
 
     _, law = controller_as_flown("smc-attitude", nominal, SimConfig(actuators="mixer"))
     params = law.params  # type: ignore[attr-defined]  # (a PureStepController: the protocol has no params)
     assert isinstance(params, AttitudeParams)
-    return params
+    return replace(params, drag_feedforward=drag_feedforward)
 
 
 def attitude_constants(params: AttitudeParams) -> np.ndarray:

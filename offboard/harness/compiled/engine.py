@@ -337,7 +337,7 @@ def simulate(
     ref, law_ref = rows
     if ref.shape[0] != n_ticks:
         raise ValueError(f"reference rows for {ref.shape[0]} ticks, the runs have {n_ticks}")
-    code, law_c, law_K, memory = cin.law_arrays(law, params)
+    code, law_c, law_K, memory = cin.law_arrays(law, params, estimator, tuning)
     arrival = getattr(scs[0], "arrival_time", None)
     residual_from = math.inf if arrival is None else arrival + 2.0
     keep = list(range(0, n_ticks, log_every)) if log_every > 0 else []

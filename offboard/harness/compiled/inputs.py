@@ -51,12 +51,18 @@ def law_shaper(law: str, nominal: Any) -> Any:
     return batched_law(law, nominal, 1)[1]
 
 
-def law_arrays(law: str, params: Any) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+def law_arrays(
+    law: str, params: Any, estimator: str = "truth", tuning: Any = None
+) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     """(code, constants, LQR gain, a run's fresh memory) of ``law`` for ``params.vehicle``, the nominal vehicle
     (``params``: ``smc``'s law; the attitude-level law is built as the sweep builds it,
-    ``attitude_law.sweep_attitude_params``)."""
+    ``attitude_law.sweep_attitude_params``, with the vehicle's drag in its model unless the run's filter, built with
+    ``tuning``, feeds its external acceleration forward: ``registry.drag_in_law``)."""
     if law == "smc-attitude":
-        c = cal.attitude_constants(cal.sweep_attitude_params(params.vehicle))
+        from offboard.control.controllers import registry
+
+        drag_ff = estimator != "kf" or registry.drag_in_law(tuning)
+        c = cal.attitude_constants(cal.sweep_attitude_params(params.vehicle, drag_ff))
         return cal.LAW_SMC_ATTITUDE, c, np.zeros((0, 0)), cal.attitude_memory()
     code, c, K = claws.law_constants(law, params.vehicle, params)
     return code, c, K, claws.law_memory(code, c)
