@@ -60,6 +60,13 @@ def custom_mode(flavour: str, role: str) -> int:
 Idle = Callable[[], None]
 
 
+#: a take-off command left unacknowledged is sent again (at most this many times) when the vehicle has not climbed
+#: above TAKEOFF_CLIMB_M (m above home) within TAKEOFF_CLIMB_WAIT_S (s)
+TAKEOFF_RESENDS = 4
+TAKEOFF_CLIMB_M = 0.2
+TAKEOFF_CLIMB_WAIT_S = 5.0
+
+
 @dataclass
 class ManagementEvent:
     """Something management did or saw: local monotonic time (s), kind, one-line detail."""
@@ -275,12 +282,27 @@ class Manager:
         if fl == "ardupilot" and not self.set_mode("offboard", idle=idle):  # GUIDED
             raise UserError("ArduPilot refused GUIDED mode")
         self.arm(idle=idle)
-        if fl == "px4":
-            alt = (home_alt_amsl if home_alt_amsl is not None else 0.0) + height
-            res = self.conn.command(MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, alt, idle=idle)
-        else:
-            res = self.conn.command(MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, height, idle=idle)
-        if res is None:  # no acknowledgement (lossy link): the climb itself will tell
+
+        def send() -> int | None:
+            if fl == "px4":
+                alt = (home_alt_amsl if home_alt_amsl is not None else 0.0) + height
+                return self.conn.command(MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, alt, idle=idle)
+            return self.conn.command(MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, height, idle=idle)
+
+        def climbing() -> bool:
+            h = height_now()
+            return h is not None and h > TAKEOFF_CLIMB_M
+
+        res = send()
+        for _ in range(TAKEOFF_RESENDS):
+            # no acknowledgement (lossy link): the command or only its ACK was lost, and the climb tells which; a
+            # vehicle that has not started climbing gets the command again (a second take-off command while taking
+            # off is harmless on PX4 and ArduPilot; a lost one left the vehicle on the ground until the time-out:
+            # tests/test_loop_failsafe.py at 30 % loss, CI 2026-12-06)
+            if res is not None or self.wait_for(climbing, TAKEOFF_CLIMB_WAIT_S, idle):
+                break
+            res = send()
+        if res is None:
             self.warnings.append("take-off command not acknowledged; waiting for the climb")
         elif res != MAV_RESULT_ACCEPTED:
             raise UserError(f"take-off refused (result {res}): " + "; ".join(self.conn.statustexts[-3:]))
