@@ -25,11 +25,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+from emulator_move_tilt import MOVE_TOML  # the 2 m move of the PX4 tests (bench/ is on the path of its scripts)
 
-#: the move of tests/test_px4_hil.py: rest 1 s, 2 m along x in 4 s with the velocity step, at 2 m
-MOVE_TOML = 'shape = "velocity"\n' + "".join(
-    f"[[waypoint]]\nt = {t}\nx = {x}\ny = 0.0\nz = 2.0\n" for t, x in ((0.0, 0.0), (1.0, 0.0), (5.0, 2.0))
-)
 VEHICLE = "px4-hil-load"
 DURATION_S = 14.0
 

@@ -6,11 +6,13 @@ from __future__ import annotations
 import json
 import math
 import os
+import select
 import signal
 import socket
 import struct
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -361,3 +363,38 @@ def fly_lockstep_hold(
         "messages": messages,
         "start_ms": start_ms,
     }
+
+
+class UdpRelay(threading.Thread):
+    """A UDP relay on 127.0.0.1 between the loop (listening on ``loop_port``) and the emulator (whoever else sends
+    to :attr:`port`), forwarding each datagram unless the hooks say otherwise: :meth:`from_loop` and
+    :meth:`from_emulator` return whether to forward (subclasses drop or count). Stops when :attr:`stop` is set."""
+
+    def __init__(self, loop_port: int) -> None:
+        super().__init__(daemon=True)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.port = self.sock.getsockname()[1]
+        self.loop_addr = ("127.0.0.1", loop_port)
+        self.emu_addr: tuple[str, int] | None = None
+        self.stop = False
+
+    def from_loop(self, data: bytes) -> bool:
+        return True
+
+    def from_emulator(self, data: bytes) -> bool:
+        return True
+
+    def run(self) -> None:
+        while not self.stop:
+            r, _, _ = select.select([self.sock], [], [], 0.05)
+            if not r:
+                continue
+            data, addr = self.sock.recvfrom(65535)
+            if addr == self.loop_addr:
+                if self.from_loop(data) and self.emu_addr is not None:
+                    self.sock.sendto(data, self.emu_addr)
+            else:
+                self.emu_addr = addr
+                if self.from_emulator(data):
+                    self.sock.sendto(data, self.loop_addr)

@@ -9,12 +9,9 @@ import gc
 import json
 import math
 import os
-import select
 import signal
-import socket
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,7 +20,7 @@ from typing import Any
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
-from emulator_helpers import emulator_process
+from emulator_helpers import UdpRelay, emulator_process
 from pymavlink import mavutil
 
 from offboard.flight.fly_cli import fly
@@ -38,39 +35,25 @@ def demo_args(tmp_path: Path, *extra: str) -> argparse.Namespace:
     return p.parse_args(["--no-figures", "--out", str(tmp_path / "run"), *extra])
 
 
-class Relay(threading.Thread):
+class Relay(UdpRelay):
     """UDP relay emulator <-> loop on 127.0.0.1 that stops forwarding the emulator's packets (telemetry) once the
     loop has sent ``cut_after`` SET_ATTITUDE_TARGET messages; the loop's packets keep flowing to the emulator."""
 
     def __init__(self, loop_port: int, cut_after: int) -> None:
-        super().__init__(daemon=True)
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.port = self.sock.getsockname()[1]
-        self.loop_addr = ("127.0.0.1", loop_port)
-        self.emu_addr: tuple[str, int] | None = None
+        super().__init__(loop_port)
         self.cut_after = cut_after
         self.setpoints = 0
         self.cut_at: float | None = None
-        self.stop = False
 
-    def run(self) -> None:
-        while not self.stop:
-            r, _, _ = select.select([self.sock], [], [], 0.05)
-            if not r:
-                continue
-            data, addr = self.sock.recvfrom(65535)
-            if addr == self.loop_addr:
-                if len(data) > 10 and data[0] == 0xFD and data[7] | (data[8] << 8) | (data[9] << 16) == 82:
-                    self.setpoints += 1
-                    if self.setpoints >= self.cut_after and self.cut_at is None:
-                        self.cut_at = time.monotonic()
-                if self.emu_addr is not None:
-                    self.sock.sendto(data, self.emu_addr)
-            else:
-                self.emu_addr = addr
-                if self.cut_at is None:
-                    self.sock.sendto(data, self.loop_addr)
+    def from_loop(self, data: bytes) -> bool:
+        if len(data) > 10 and data[0] == 0xFD and data[7] | (data[8] << 8) | (data[9] << 16) == 82:
+            self.setpoints += 1
+            if self.setpoints >= self.cut_after and self.cut_at is None:
+                self.cut_at = time.monotonic()
+        return True
+
+    def from_emulator(self, data: bytes) -> bool:
+        return self.cut_at is None
 
 
 def tlog_messages(path: Path) -> list:

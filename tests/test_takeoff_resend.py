@@ -7,14 +7,11 @@ vehicle that has not climbed within 5 s gets the command again and the flight co
 from __future__ import annotations
 
 import argparse
-import select
 import signal
-import socket
 import subprocess
-import threading
 from pathlib import Path
 
-from emulator_helpers import emulator_process
+from emulator_helpers import UdpRelay, emulator_process
 from pymavlink.dialects.v20 import common as mavlink2
 
 from offboard.flight.fly_cli import fly
@@ -24,44 +21,26 @@ from offboard.harness.demo_cli import configure, free_udp_port
 NAV_TAKEOFF = 22
 
 
-class TakeoffDropper(threading.Thread):
+class TakeoffDropper(UdpRelay):
     """Relays datagrams between the loop and the emulator, dropping the loop's first ``drop`` NAV_TAKEOFF commands."""
 
     def __init__(self, loop_port: int, drop: int) -> None:
-        super().__init__(daemon=True)
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.port = self.sock.getsockname()[1]
-        self.loop_addr = ("127.0.0.1", loop_port)
-        self.emu_addr: tuple[str, int] | None = None
+        super().__init__(loop_port)
         self.drop = drop
         self.dropped = 0
         self.passed = 0
-        self.stop = False
         self._mav = mavlink2.MAVLink(None)
         self._mav.robust_parsing = True
 
-    def _is_takeoff(self, data: bytes) -> bool:
+    def from_loop(self, data: bytes) -> bool:
         msgs = self._mav.parse_buffer(data) or []
-        return any(m.get_type() == "COMMAND_LONG" and m.command == NAV_TAKEOFF for m in msgs)
-
-    def run(self) -> None:
-        while not self.stop:
-            r, _, _ = select.select([self.sock], [], [], 0.05)
-            if not r:
-                continue
-            data, addr = self.sock.recvfrom(65535)
-            if addr == self.loop_addr:
-                if self._is_takeoff(data):
-                    if self.dropped < self.drop:
-                        self.dropped += 1
-                        continue
-                    self.passed += 1
-                if self.emu_addr is not None:
-                    self.sock.sendto(data, self.emu_addr)
-            else:
-                self.emu_addr = addr
-                self.sock.sendto(data, self.loop_addr)
+        if not any(m.get_type() == "COMMAND_LONG" and m.command == NAV_TAKEOFF for m in msgs):
+            return True
+        if self.dropped < self.drop:
+            self.dropped += 1
+            return False
+        self.passed += 1
+        return True
 
 
 def test_a_lost_takeoff_command_is_sent_again_and_the_flight_completes(tmp_path: Path) -> None:
