@@ -50,20 +50,42 @@ def _input() -> np.ndarray:
 
 def test_derivative_rk4_and_tension_equal_the_scalar_plant() -> None:
     """Random states, inputs and true vehicles: the derivative, an RK4 step with the cable's projection and the
-    tension equal ``sim_bridge.plant.dynamics`` (the scalar path) to the last bits or 1e-15 relative."""
-    work = np.empty((5, 18))
+    tension equal ``sim_bridge.plant.dynamics`` (the scalar path) to 1e-13: the same equations, not the same
+    operations (the kernel multiplies by the reciprocals of the masses, the length and the inertia where the scalar
+    path divides, and moves the RK4 stages' sines by the angle-addition formulas), which costs a few ulp of the
+    largest term; an error in an equation would show at 1e-3 or more."""
+    work = np.empty((6, 18))
     out = np.empty(18)
     for v in _vehicles(20):
         p = cp.plant_constants(v)
         pp = dynamics.plant_params(v, "paper")
         x, u = _state(), _input()
         cp.derivative(x, u, p, out)
-        np.testing.assert_allclose(out, dynamics.derivative(0.0, list(x), list(u), pp), rtol=1e-15, atol=1e-15)
+        np.testing.assert_allclose(out, dynamics.derivative(0.0, list(x), list(u), pp), rtol=1e-13, atol=1e-13)
         y = x.copy()
         cp.rk4_step(y, u, p, 1e-3, work)
-        np.testing.assert_allclose(y, dynamics.rk4_step(list(x), list(u), pp, 1e-3), rtol=1e-15, atol=1e-15)
+        np.testing.assert_allclose(y, dynamics.rk4_step(list(x), list(u), pp, 1e-3), rtol=1e-13, atol=1e-13)
         assert not np.allclose(y, x)  # it moved
         assert cp.tension(x, u, p) == pytest.approx(dynamics.tension(list(x), list(u), pp), rel=1e-15, abs=1e-15)
+
+
+def test_rk4_stage_sines_by_angle_addition_equal_libm_and_fall_back_beyond_the_series_range() -> None:
+    """The stages' sines and cosines by the angle-addition formulas: within 4 ulp of libm's ``sin(a + d)`` over
+    angles to +-pi and steps to the series' limit; a vehicle tumbling at 100 rad/s (steps beyond the limit, libm's
+    path) still steps as the scalar plant does."""
+    shifted = cp._shifted.py_func
+    for a in np.linspace(-math.pi, math.pi, 41):
+        for d in (0.0, 1e-9, -3e-6, 2e-4, -0.007, 0.0299, -0.03):
+            sa, ca = shifted(a, math.sin(a), math.cos(a), d)
+            assert abs(sa - math.sin(a + d)) <= 4 * 2.3e-16 and abs(ca - math.cos(a + d)) <= 4 * 2.3e-16, (a, d)
+    v = _vehicles(1)[0]
+    p, pp = cp.plant_constants(v), dynamics.plant_params(v, "paper")
+    x, u = _state(), _input()
+    x[9:12] = (100.0, -80.0, 90.0)  # h/2 * rate = 0.05 rad > the series' 0.03
+    y = x.copy()
+    cp.rk4_step(y, u, p, 1e-3, np.empty((6, 18)))
+    np.testing.assert_allclose(y, dynamics.rk4_step(list(x), list(u), pp, 1e-3), rtol=1e-13, atol=1e-13)
+    assert abs(y[6] - x[6]) > 0.09  # it turned through the fallback's range
 
 
 def test_drag_equals_the_scalar_drag_and_leaves_slots_without_it() -> None:

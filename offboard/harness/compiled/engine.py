@@ -30,6 +30,8 @@ from offboard.harness.compiled import px4_loops as cpx
 from offboard.harness.compiled.inputs import ACT_IDEAL, ACT_MIXER, ACT_PX4_ATTITUDE
 from offboard.harness.compiled.layout import (
     ADVANCE,
+    EST_ALPHA_X,
+    EST_ALPHA_Y,
     EST_FX,
     EST_FY,
     EST_SIZE,
@@ -48,8 +50,9 @@ FIG_PEAK, FIG_RESIDUAL, FIG_SQ, FIG_N, FIG_FINAL, FIG_EST_ERR, FIG_SLACK, FIG_FI
 )
 FIG_SIZE = 10
 #: rows of a run's scratch (``fly_run``'s ``ws``: RK4's stages, the derivative, the input, the command (the attitude
-#: law's 7 floats), the gust, the true state and the estimate, the lagged command, the motors' thrusts and commands)
-WS_ROWS = 14
+#: law's 7 floats), the gust, the true state and the estimate, the lagged command, the motors' thrusts and commands,
+#: the sines and cosines of the state's attitude)
+WS_ROWS = 15
 #: the logged columns besides the state (``offboard.harness.batched.simulate``'s names)
 LOG_NAMES = ("alpha", "e_Fx", "e_Fy", "e_z", "est_Fx0", "est_Fy0")
 
@@ -104,20 +107,23 @@ def _sample_due(
     rec_val: np.ndarray,
     bias: np.ndarray,
     x: np.ndarray,
+    trig: np.ndarray,
     u: np.ndarray,
     p: np.ndarray,
     deriv: np.ndarray,
 ) -> None:
-    """The records the sensors sample at plant step ``step`` (after it), their values from the state reached."""
+    """The records the sensors sample at plant step ``step`` (after it), their values from the state reached
+    (``trig``: its attitude's sines and cosines, ``plant.angle_trig``)."""
     have_deriv = False
     for kind in range(4):
         j = next_rec[kind]
         if j >= rec_start[kind + 1] or rec_step[j] != step:
             continue
         if kind == IMU and not have_deriv:
-            cp.derivative(x, u, p, deriv)
+            cp.derivative_at(x, u, p, trig[0], trig[1], trig[2], trig[3], trig[4], trig[5], deriv)
             have_deriv = True
-        cp.measure(kind, x, deriv, p[cp.P_G], bias, rec_noise[j], rec_val[j])
+        sf, cf, st, ct, sp, cpsi = trig[0], trig[1], trig[2], trig[3], trig[4], trig[5]
+        cp.measure_at(kind, x, sf, cf, st, ct, sp, cpsi, deriv, p[cp.P_G], bias, rec_noise[j], rec_val[j])
         next_rec[kind] = j + 1
 
 
@@ -187,6 +193,8 @@ def fly_run(
     lagged = ws[11, 0:3]
     f_mot = ws[12, 0:4]
     cmd = ws[13, 0:4]
+    trig = ws[14, 0 : cp.TRIG_SIZE]  # the sines and cosines of x's attitude, kept by rk4_step_trig
+    cp.angle_trig(x, trig)
     for i in range(4):
         f_mot[i] = cmd[i] = 0.25 * hover
         next_rec[i] = rec_start[i]
@@ -199,7 +207,7 @@ def fly_run(
     li = 0
     for tick in range(n_ticks):
         t = tick * dt
-        cp.truth_state(x, kl, kg, kc, truth)
+        cp.truth_state_at(x, trig[4], trig[5], kl, kg, kc, truth)
         if use_kf:
             if tick == 0:
                 ckf.kf_initialize(kf_c, kf_f, kf_n, 0.0, truth)
@@ -231,8 +239,9 @@ def fly_run(
         # the figures of the tick (offboard.harness.batched.Figures.tick)
         r1, r2, r3 = x[12], x[13], x[14]
         alpha = math.atan2(math.sqrt(r1 * r1 + r2 * r2), -r3)
-        e0 = x[0] + p[cp.P_L] * math.atan2(r1, -r3) - ref[tick, REF_FX]
-        e1 = x[1] + p[cp.P_L] * math.atan2(r2, -r3) - ref[tick, REF_FY]
+        # truth's swing angles are atan2(r1, -r3) and atan2(r2, -r3) of this x: the figures' too, not computed twice
+        e0 = x[0] + p[cp.P_L] * truth[EST_ALPHA_Y] - ref[tick, REF_FX]
+        e1 = x[1] + p[cp.P_L] * truth[EST_ALPHA_X] - ref[tick, REF_FY]
         e2 = x[2] - ref[tick, REF_Z]
         ex, ey = est[EST_FX] - truth[EST_FX], est[EST_FY] - truth[EST_FY]
         peak = _fmax(peak, alpha)
@@ -262,13 +271,13 @@ def fly_run(
             elif actuators == ACT_PX4_ATTITUDE:  # from the state before the step, as Px4AttitudePath.step(x)
                 cpx.px4_step(px_c, px_s, x, u)
             cp.apply_drag(u, x, dist[0:3], dist[6:9], p)
-            cp.rk4_step(x, u, p, plant_dt, work)
-            tens = cp.tension(x, u, p)
+            cp.rk4_step_trig(x, u, p, plant_dt, work, trig)
+            tens = cp.tension_at(x, u, p, trig[0], trig[1], trig[2], trig[3], trig[4], trig[5])
             if tens <= 0.0:
                 slack += 1
             min_tension = minimum(min_tension, tens)
             if use_kf:
-                _sample_due(step, next_rec, rec_start, rec_step, rec_noise, rec_val, bias, x, u, p, deriv)
+                _sample_due(step, next_rec, rec_start, rec_step, rec_noise, rec_val, bias, x, trig, u, p, deriv)
             step += 1
         for i in range(18):
             if not math.isfinite(x[i]):

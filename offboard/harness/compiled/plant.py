@@ -42,13 +42,17 @@ from offboard.harness.compiled.layout import (
 
 # ---- the true vehicle ---------------------------------------------------------------------------------------------
 P_M, P_m, P_L, P_G, P_IP, P_IT, P_IS, P_KDV, P_KDW = range(9)
-PLANT_SIZE = 9
+#: reciprocals of the masses, of their sum, of the cable's length and of the inertia: the derivative multiplies by
+#: them (fourteen divisions per call were a third of an RK4 step; the results move by an ulp or so)
+P_INV_M, P_INV_m, P_INV_MT, P_INV_L, P_INV_IP, P_INV_IT, P_INV_IS = range(9, 16)
+PLANT_SIZE = 16
 
 
 def plant_constants(vehicle: Any) -> np.ndarray:
     """A run's TRUE vehicle as the plant's constants: masses (kg), cable length (m), gravity (m/s^2), the paper
-    model's inertia (kg m^2), still-air drag (N per m/s, N m per rad/s)."""
+    model's inertia (kg m^2), still-air drag (N per m/s, N m per rad/s), then the reciprocals (``P_INV_*``)."""
     ip, it, i_s = vehicle.inertia
+    M, m = vehicle.mass_vehicle, vehicle.mass_load
     return np.array(
         [
             vehicle.mass_vehicle,
@@ -60,21 +64,83 @@ def plant_constants(vehicle: Any) -> np.ndarray:
             i_s,
             vehicle.linear_drag,
             vehicle.angular_drag,
+            1.0 / M,
+            1.0 / m,
+            1.0 / (M + m),
+            1.0 / vehicle.cable_length,
+            1.0 / ip,
+            1.0 / it,
+            1.0 / i_s,
         ]
     )
+
+
+# ---- the attitude's sines and cosines, shared by the kernels that read one state ------------------------------------
+TRIG_SIZE = 6  # sin phi, cos phi, sin theta, cos theta, sin psi, cos psi
+
+
+@pure_kernel
+def angle_trig(x: np.ndarray, trig: np.ndarray) -> None:
+    """The sines and cosines of the state's Euler angles ``x[6:9]`` (rad) into ``trig`` (``TRIG_SIZE``): what
+    :func:`derivative`, :func:`tension` and :func:`measure` would each compute from ``x``, computed once."""
+    trig[0], trig[1] = math.sin(x[6]), math.cos(x[6])
+    trig[2], trig[3] = math.sin(x[7]), math.cos(x[7])
+    trig[4], trig[5] = math.sin(x[8]), math.cos(x[8])
+
+
+#: the largest angle step (rad) :func:`_shifted` takes by its series; beyond it (a run tumbling at 60 rad/s or more
+#: over half a millisecond) it asks libm
+_SERIES_STEP = 0.03
+
+
+# the series' coefficients, products rather than divisions (a division costs as much as a dozen products)
+_S3, _S5, _S7, _S9 = -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0, 1.0 / 362880.0
+_C2, _C4, _C6, _C8, _C10 = -0.5, 1.0 / 24.0, -1.0 / 720.0, 1.0 / 40320.0, -1.0 / 3628800.0
+
+
+@inline_kernel
+def _shifted(a: float, s: float, c: float, d: float) -> tuple[float, float]:
+    """``(sin(a + d), cos(a + d))`` from ``s = sin a``, ``c = cos a`` and a small step ``d`` (rad) by the angle-addition
+    formulas with ``sin d`` and ``cos d`` as Taylor series (truncated after d^9 / 9! and d^10 / 10!: below 1e-22 at
+    ``_SERIES_STEP``): a few ulp from libm's ``sin(a + d)``, at the cost of a dozen multiplications instead of a
+    libm call. Why: the RK4 stages' attitude moves by ``h/2 * rate`` from a state whose sines are known, and these
+    calls were the largest single cost of a compiled tick."""
+    if not abs(d) <= _SERIES_STEP:  # (a NaN step too: libm propagates it)
+        return math.sin(a + d), math.cos(a + d)
+    d2 = d * d
+    sd = d + d * d2 * (_S3 + d2 * (_S5 + d2 * (_S7 + d2 * _S9)))
+    cd = 1.0 + d2 * (_C2 + d2 * (_C4 + d2 * (_C6 + d2 * (_C8 + d2 * _C10))))
+    return s * cd + c * sd, c * cd - s * sd
 
 
 @pure_kernel
 def derivative(x: np.ndarray, u: np.ndarray, p: np.ndarray, out: np.ndarray) -> None:
     """``sim_bridge.plant.dynamics.derivative`` (paper attitude model, a load of mass > 0) into ``out`` (18,)."""
-    phi, theta, psi = x[6], x[7], x[8]
+    sf, cf = math.sin(x[6]), math.cos(x[6])
+    st, ct = math.sin(x[7]), math.cos(x[7])
+    sp, cp = math.sin(x[8]), math.cos(x[8])
+    derivative_at(x, u, p, sf, cf, st, ct, sp, cp, out)
+
+
+@inline_kernel
+def derivative_at(
+    x: np.ndarray,
+    u: np.ndarray,
+    p: np.ndarray,
+    sf: float,
+    cf: float,
+    st: float,
+    ct: float,
+    sp: float,
+    cp: float,
+    out: np.ndarray,
+) -> None:
+    """:func:`derivative` with the sines and cosines of ``x``'s roll, pitch and yaw given."""
     r1, r2, r3 = x[12], x[13], x[14]
     d1, d2, d3 = x[15], x[16], x[17]
     M, m, l = p[P_M], p[P_m], p[P_L]
+    inv_M, inv_m = p[P_INV_M], p[P_INV_m]
     thrust = u[0]
-    sf, cf = math.sin(phi), math.cos(phi)
-    st, ct = math.sin(theta), math.cos(theta)
-    sp, cp = math.sin(psi), math.cos(psi)
     n1, n2, n3 = sf * sp + cf * cp * st, cf * sp * st - cp * sf, cf * ct
     q1 = thrust * n1 + u[4]
     q2 = thrust * n2 + u[5]
@@ -82,20 +148,20 @@ def derivative(x: np.ndarray, u: np.ndarray, p: np.ndarray, out: np.ndarray) -> 
     rd2 = d1 * d1 + d2 * d2 + d3 * d3
     rq = r1 * q1 + r2 * q2 + r3 * q3
     rl = r1 * u[7] + r2 * u[8] + r3 * u[9]
-    T = (m * M * l * rd2 + M * rl - m * rq) / (M + m)
+    T = (m * M * l * rd2 + M * rl - m * rq) * p[P_INV_MT]
     out[0], out[1], out[2] = x[3], x[4], x[5]
-    out[3] = (q1 + T * r1) / M
-    out[4] = (q2 + T * r2) / M
-    out[5] = (q3 + T * r3) / M - p[P_G]
-    w1 = u[7] / m - q1 / M
-    w2 = u[8] / m - q2 / M
-    w3 = u[9] / m - q3 / M
+    out[3] = (q1 + T * r1) * inv_M
+    out[4] = (q2 + T * r2) * inv_M
+    out[5] = (q3 + T * r3) * inv_M - p[P_G]
+    w1 = u[7] * inv_m - q1 * inv_M
+    w2 = u[8] * inv_m - q2 * inv_M
+    w3 = u[9] * inv_m - q3 * inv_M
     wr = w1 * r1 + w2 * r2 + w3 * r3
-    inv_l = 1.0 / l
+    inv_l = p[P_INV_L]
     out[6], out[7], out[8] = x[9], x[10], x[11]
-    out[9] = (u[1] + u[10]) / p[P_IP]
-    out[10] = (u[2] + u[11]) / p[P_IT]
-    out[11] = (u[3] + u[12]) / p[P_IS]
+    out[9] = (u[1] + u[10]) * p[P_INV_IP]
+    out[10] = (u[2] + u[11]) * p[P_INV_IT]
+    out[11] = (u[3] + u[12]) * p[P_INV_IS]
     out[12], out[13], out[14] = x[15], x[16], x[17]
     out[15] = (w1 - wr * r1) * inv_l - rd2 * r1
     out[16] = (w2 - wr * r2) * inv_l - rd2 * r2
@@ -105,19 +171,37 @@ def derivative(x: np.ndarray, u: np.ndarray, p: np.ndarray, out: np.ndarray) -> 
 @pure_kernel
 def rk4_step(x: np.ndarray, u: np.ndarray, p: np.ndarray, h: float, work: np.ndarray) -> None:
     """``sim_bridge.plant.dynamics.rk4_step`` in place on ``x`` (input held over ``h`` s, the cable projected back
-    onto ``|r| = 1``, ``r . r' = 0``); ``work`` (5, 18) is scratch."""
+    onto ``|r| = 1``, ``r . r' = 0``); ``work`` (6, 18) is scratch."""
+    trig = work[5, 0:TRIG_SIZE]
+    angle_trig(x, trig)
+    rk4_step_trig(x, u, p, h, work, trig)
+
+
+@inline_kernel
+def _stage(x: np.ndarray, k: np.ndarray, c: float, trig: np.ndarray, y: np.ndarray) -> tuple:
+    """The RK4 stage state ``y = x + c k`` and the sines and cosines of its attitude (from ``trig``, ``x``'s)."""
+    for i in range(18):
+        y[i] = x[i] + c * k[i]
+    sf, cf = _shifted(x[6], trig[0], trig[1], c * k[6])
+    st, ct = _shifted(x[7], trig[2], trig[3], c * k[7])
+    sp, cp = _shifted(x[8], trig[4], trig[5], c * k[8])
+    return sf, cf, st, ct, sp, cp
+
+
+@pure_kernel
+def rk4_step_trig(x: np.ndarray, u: np.ndarray, p: np.ndarray, h: float, work: np.ndarray, trig: np.ndarray) -> None:
+    """:func:`rk4_step` with ``trig`` (``TRIG_SIZE``) the sines and cosines of ``x``'s attitude (:func:`angle_trig`),
+    left as those of the new ``x``: the stages' from them by :func:`_shifted`, so a step calls libm three times
+    (the new state's) instead of twelve; the caller's :func:`tension_at` and :func:`measure` read them too."""
     k1, k2, k3, k4, y = work[0], work[1], work[2], work[3], work[4]
-    derivative(x, u, p, k1)
+    derivative_at(x, u, p, trig[0], trig[1], trig[2], trig[3], trig[4], trig[5], k1)
     hh = 0.5 * h
-    for i in range(18):
-        y[i] = x[i] + hh * k1[i]
-    derivative(y, u, p, k2)
-    for i in range(18):
-        y[i] = x[i] + hh * k2[i]
-    derivative(y, u, p, k3)
-    for i in range(18):
-        y[i] = x[i] + h * k3[i]
-    derivative(y, u, p, k4)
+    sf, cf, st, ct, sp, cp = _stage(x, k1, hh, trig, y)
+    derivative_at(y, u, p, sf, cf, st, ct, sp, cp, k2)
+    sf, cf, st, ct, sp, cp = _stage(x, k2, hh, trig, y)
+    derivative_at(y, u, p, sf, cf, st, ct, sp, cp, k3)
+    sf, cf, st, ct, sp, cp = _stage(x, k3, h, trig, y)
+    derivative_at(y, u, p, sf, cf, st, ct, sp, cp, k4)
     h6 = h / 6.0
     for i in range(18):
         x[i] = x[i] + h6 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
@@ -129,6 +213,7 @@ def rk4_step(x: np.ndarray, u: np.ndarray, p: np.ndarray, h: float, work: np.nda
     x[15] -= dot * r1
     x[16] -= dot * r2
     x[17] -= dot * r3
+    angle_trig(x, trig)
 
 
 @pure_kernel
@@ -137,6 +222,14 @@ def tension(x: np.ndarray, u: np.ndarray, p: np.ndarray) -> float:
     sf, cf = math.sin(x[6]), math.cos(x[6])
     st, ct = math.sin(x[7]), math.cos(x[7])
     sp, cp = math.sin(x[8]), math.cos(x[8])
+    return tension_at(x, u, p, sf, cf, st, ct, sp, cp)
+
+
+@inline_kernel
+def tension_at(
+    x: np.ndarray, u: np.ndarray, p: np.ndarray, sf: float, cf: float, st: float, ct: float, sp: float, cp: float
+) -> float:
+    """:func:`tension` with the sines and cosines of ``x``'s roll, pitch and yaw given."""
     n1, n2, n3 = sf * sp + cf * cp * st, cf * sp * st - cp * sf, cf * ct
     r1, r2, r3 = x[12], x[13], x[14]
     d1, d2, d3 = x[15], x[16], x[17]
@@ -177,6 +270,27 @@ def measure(
     ``out``: the state ``x``, the plant derivative ``deriv`` at it (the accelerometer only), gravity ``g``, the
     accelerometer's bias (3,) and the record's noise ``e``. Fields as ``estimators.model.measurements`` after the
     time (position / velocity world NWU; attitude ZYX, body rates FLU; specific force body FLU; load angles)."""
+    sf, cf, st, ct = math.sin(x[6]), math.cos(x[6]), math.sin(x[7]), math.cos(x[7])
+    measure_at(kind, x, sf, cf, st, ct, math.sin(x[8]), math.cos(x[8]), deriv, g, bias, e, out)
+
+
+@inline_kernel
+def measure_at(
+    kind: int,
+    x: np.ndarray,
+    sf: float,
+    cf: float,
+    st: float,
+    ct: float,
+    sp: float,
+    cp: float,
+    deriv: np.ndarray,
+    g: float,
+    bias: np.ndarray,
+    e: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """:func:`measure` with the sines and cosines of ``x``'s roll, pitch and yaw given."""
     if kind == POS:
         for i in range(6):
             out[i] = x[i] + e[i]
@@ -186,8 +300,6 @@ def measure(
         out[0] = math.atan2(r2, -r3) + e[0]
         out[1] = math.atan2(r1, -r3) + e[1]
         return
-    phi, theta = x[6], x[7]
-    sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
     p = x[9] - st * x[11]
     q = cf * x[10] + sf * ct * x[11]
     r = -sf * x[10] + cf * ct * x[11]
@@ -196,7 +308,6 @@ def measure(
         out[3], out[4], out[5] = p + e[3], q + e[4], r + e[5]
         return
     fx, fy, fz = deriv[3], deriv[4], deriv[5] + g  # sim_bridge.plant.sensors.specific_force_body
-    sp, cp = math.sin(x[8]), math.cos(x[8])
     bx = cp * ct * fx + sp * ct * fy - st * fz
     by = (cp * st * sf - sp * cf) * fx + (sp * st * sf + cp * cf) * fy + ct * sf * fz
     bz = (cp * st * cf + sp * sf) * fx + (sp * st * cf - cp * sf) * fy + ct * cf * fz
@@ -315,6 +426,12 @@ def truth_state(x: np.ndarray, l: float, g: float, c: float, out: np.ndarray) ->
     """``estimators.model.flatness.truth_control_state`` (as ``offboard.harness.batched.truth_state``) into the
     estimate vector ``out`` (``layout.EST_*``), with the controller's nominal flat constants ``l`` (m), ``g``
     (m/s^2), ``c``."""
+    truth_state_at(x, math.sin(x[8]), math.cos(x[8]), l, g, c, out)
+
+
+@inline_kernel
+def truth_state_at(x: np.ndarray, sp: float, cp: float, l: float, g: float, c: float, out: np.ndarray) -> None:
+    """:func:`truth_state` with the sine and cosine of ``x``'s yaw given."""
     r1, r2, r3, d1, d2, d3 = x[12], x[13], x[14], x[15], x[16], x[17]
     qy = r1 * r1 + r3 * r3
     qx = r2 * r2 + r3 * r3
@@ -322,7 +439,6 @@ def truth_state(x: np.ndarray, l: float, g: float, c: float, out: np.ndarray) ->
     ayd = (r1 * d3 - r3 * d1) / qy if qy > 0.0 else 0.0
     axd = (r2 * d3 - r3 * d2) / qx if qx > 0.0 else 0.0
     phi, theta, psi, dphi, dtheta, dpsi = x[6], x[7], x[8], x[9], x[10], x[11]
-    cp, sp = math.cos(psi), math.sin(psi)
     nx = theta * cp + phi * sp
     ny = theta * sp - phi * cp
     nxd = dtheta * cp + dphi * sp - dpsi * ny
