@@ -170,8 +170,10 @@ def _fly_both(case: str, flight: tuple[np.ndarray, list[Any]]) -> dict[str, np.n
             where = f"{case}, tick {tick}, run {b}"
             np.testing.assert_allclose(u_k, us[tick, :, b], rtol=0, atol=ATOL, err_msg=where)
             assert sat_k == sats[tick, b], where
-            state = batch.memory(b)  # LQR's memory vector ends with its scratch area (laws.LQR_STATE)
-            assert state.size == (laws.LQR_STATE if code == laws.LAW_LQR else mems[b].size)
+            state = batch.memory(b)  # LQR's memory vector ends with its scratch area (laws.LQR_STATE), smc's with
+            # its lag factor's cache (laws.M_LAG_A)
+            size = {laws.LAW_LQR: laws.LQR_STATE, laws.LAW_SMC: laws.M_LAG_A}.get(code, mems[b].size)
+            assert state.size == size
             np.testing.assert_allclose(mems[b][: state.size], state, rtol=0, atol=ATOL, err_msg=f"memory, {where}")
     return {"u": us, "sat": sats}
 

@@ -202,6 +202,7 @@ def fly_run(
     saturated, min_tension, slack = 0.0, np.inf, 0
     finite = True
     t_prev = 0.0
+    lag_dt, lag_a = math.nan, 0.0  # the command lag's last step (s) and its factor
     ev_i = 0
     step = 0
     li = 0
@@ -225,7 +226,9 @@ def fly_run(
                 lagged[0], lagged[1], lagged[2] = uc[0], uc[1], uc[2]
             else:
                 step_dt = t - t_prev
-                a_lag = 1.0 - math.exp(-step_dt / lag_tau) if step_dt > 0.0 else 0.0
+                if step_dt != lag_dt:  # (tick * dt differences take a few values: exp is not called every tick)
+                    lag_dt, lag_a = step_dt, 1.0 - math.exp(-step_dt / lag_tau) if step_dt > 0.0 else 0.0
+                a_lag = lag_a
                 for i in range(3):
                     lagged[i] = lagged[i] + a_lag * (uc[i] - lagged[i])
             t_prev = t

@@ -91,9 +91,11 @@ LQR_SIZE = 14
 
 # ---- a run's memory --------------------------------------------------------------------------------------------------
 # smc (batched.smc_step's 8 rows): the error integrals (m s, rad s, m s, m s), the roll / pitch torques commanded at
-# the last tick and those modelled as delivered then (N m)
+# the last tick and those modelled as delivered then (N m); then the actuation lag's factor 1 - exp(-dt / lag) and
+# the dt (s) it is for (NaN before the first: a control period is the same at every tick, so exp runs once a run)
 M_INT_Z, M_INT_PSI, M_INT_FX, M_INT_FY, M_TP_CMD, M_TT_CMD, M_TP_ACT, M_TT_ACT = range(8)
-SMC_MEMORY = 8
+M_LAG_A, M_LAG_DT = 8, 9
+SMC_MEMORY = 10
 # the baselines: the time of the last step (s; NaN before the first) first
 B_T_LAST = 0
 # the cascade's velocity integrators (m, world) and rate integrators (rad); swing-feedback's rest offset, position
@@ -189,12 +191,14 @@ def law_constants(law: str, vehicle: Vehicle, params: smc.ControllerParams) -> t
 
 def law_memory(code: int, c: np.ndarray) -> np.ndarray:
     """A run's memory before its first tick for the law ``code`` with constants ``c`` (checked against the code):
-    smc's 8 zeros; the baselines' integrators at zero, their last step time NaN (and LQR's delivered thrust and
+    smc's 8 zeros (and its lag factor's cache, empty); the baselines' integrators at zero, their last step time NaN (and LQR's delivered thrust and
     torques NaN: set to the feed-forward at the first step)."""
     if code not in _SIZES or c.shape != (_SIZES[code],):
         raise ValueError(f"law code {code} with {c.shape} constants: not a pair law_constants gives")
     if code == LAW_SMC:
-        return np.zeros(SMC_MEMORY)
+        mem = np.zeros(SMC_MEMORY)
+        mem[M_LAG_DT] = math.nan
+        return mem
     size = {LAW_CASCADE: CASCADE_MEMORY, LAW_SWING_FEEDBACK: SWING_MEMORY, LAW_LQR: LQR_MEMORY}[code]
     mem = np.zeros(size)
     mem[B_T_LAST] = math.nan
@@ -374,7 +378,9 @@ def smc_step(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray, ref: np
     lag = c[S_LAG]
     tp_act = tt_act = 0.0
     if lag > 0.0:
-        a = 1.0 - math.exp(-dt / lag) if dt > 0.0 else 0.0
+        if dt != mem[M_LAG_DT]:
+            mem[M_LAG_A], mem[M_LAG_DT] = (1.0 - math.exp(-dt / lag) if dt > 0.0 else 0.0), dt
+        a = mem[M_LAG_A]
         tp_act = mem[M_TP_ACT] + a * (mem[M_TP_CMD] - mem[M_TP_ACT])
         tt_act = mem[M_TT_ACT] + a * (mem[M_TT_CMD] - mem[M_TT_ACT])
         a1, a2 = tt_act / c[S_IT], tp_act / c[S_IP]  # delivered [theta'', -phi''] = (a1, -a2)

@@ -67,9 +67,12 @@ def inline_kernel(fn):  # type: ignore[no-untyped-def]
 @inline_kernel
 def wrap_angle(a: float) -> float:
     """``estimators.model.frames.wrap_angle`` (and ``batched_kf.wrap_angles``): ``a`` (rad) into (-pi, pi], by
-    ``fmod`` (exact; numba has no ``math.fmod``, ``np.fmod`` of floats is C's)."""
+    ``fmod`` (exact; numba has no ``math.fmod``, ``np.fmod`` of floats is C's). ``fmod(w, 2 pi)`` of a ``w`` already
+    in [0, 2 pi) is ``w`` itself, so that case (nearly every call) skips the call into numba's C helper."""
     two_pi = 2.0 * math.pi
-    w = np.fmod(a + math.pi, two_pi)
+    w = a + math.pi
+    if not (w >= 0.0 and w < two_pi):
+        w = np.fmod(w, two_pi)
     if w <= 0.0:
         w = w + two_pi
     return w - math.pi
