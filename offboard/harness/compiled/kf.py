@@ -108,7 +108,11 @@ F_T_IMU = F_Y_MEAN + 3  # sampling time of the acceleration input in force (s; -
 F_FZ = F_T_IMU + 1  # low-passed body-vertical specific force, m/s^2
 F_EY2 = F_FZ + 1  # per channel, the running mean of the squared innovation
 F_EHPH = F_EY2 + N_CHANNELS  # per channel, the running mean of the innovation's predicted variance
-F_THRUSTS = F_EHPH + N_CHANNELS  # the ring of the last C_N_THRUST pushed thrusts, N (the state's last floats)
+# the heading estimate the last command was rotated with (rad; NaN: none) and its cosine and sine: the heading block
+# moves only when a record is fused, the commands come every tick
+F_PUSH_PSI = F_EHPH + N_CHANNELS
+F_PUSH_COS, F_PUSH_SIN = F_PUSH_PSI + 1, F_PUSH_PSI + 2
+F_THRUSTS = F_PUSH_PSI + 3  # the ring of the last C_N_THRUST pushed thrusts, N (the state's last floats)
 N_THRUST_POS = 0  # the ring's next slot (-1: no command pushed yet)
 N_GATED_RUN = 1  # per stream, its updates refused in a row
 N_REFUSED = N_GATED_RUN + 8  # per stream, refused updates since initialize (the scalar filter's gated_<stream>)
@@ -161,7 +165,9 @@ def kf_constants(
 def kf_new_state(consts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Zero-filled state arrays ``(f, n)`` (float64, int64) of the filter of ``consts``; :func:`kf_initialize`
     fills them."""
-    return np.zeros(F_THRUSTS + int(consts[C_N_THRUST])), np.zeros(N_SIZE, dtype=np.int64)
+    f = np.zeros(F_THRUSTS + int(consts[C_N_THRUST]))
+    f[F_PUSH_PSI] = math.nan  # no heading cached yet
+    return f, np.zeros(N_SIZE, dtype=np.int64)
 
 
 # ---- numpy's elementwise semantics on scalars ---------------------------------------------------------------------
@@ -526,6 +532,7 @@ def kf_initialize(c: np.ndarray, f: np.ndarray, n: np.ndarray, t: float, est_gue
         f[F_Q_P + i] = c[C_Q_P_MIN]
     f[F_T_IMU] = -math.inf
     f[F_FZ] = c[C_G]
+    f[F_PUSH_PSI] = math.nan
     for ch in range(N_CHANNELS):
         f[F_EY2 + ch] = c[C_FLOOR + ch]
     n[N_THRUST_POS] = -1
@@ -548,10 +555,12 @@ def kf_push_command(
         else:
             if math.isfinite(thrust):
                 f[F_THRUSTS + pos] = thrust
-            n[N_THRUST_POS] = (pos + 1) % n_thrust
+            n[N_THRUST_POS] = pos + 1 if pos + 1 < n_thrust else 0  # (pos + 1) % n_thrust, without a division
     t1, t2 = tau_theta / c[C_I_THETA], -tau_phi / c[C_I_PHI]
     psi = f[_HD + B_X]
-    cp, sp = math.cos(psi), math.sin(psi)
+    if psi != f[F_PUSH_PSI]:  # (a NaN heading is recomputed every time: cos and sin give NaN again)
+        f[F_PUSH_PSI], f[F_PUSH_COS], f[F_PUSH_SIN] = psi, math.cos(psi), math.sin(psi)
+    cp, sp = f[F_PUSH_COS], f[F_PUSH_SIN]
     if math.isfinite(tau_phi) and math.isfinite(tau_theta):
         f[F_U_TILT] = cp * t1 - sp * t2
         f[F_U_TILT + 1] = sp * t1 + cp * t2

@@ -71,7 +71,9 @@ S_RHO_Z, S_RHO_PSI, S_RHO_F = 21, 22, 23
 S_SMOOTH, S_EPS_Z, S_EPS_PSI, S_EPS_F, S_LAG = 24, 25, 26, 27, 28
 # limits (N, N m); shared roll / pitch margin (1.0 or 0.0), a motor's largest thrust and margin at hover (N)
 S_THRUST_MIN, S_THRUST_MAX, S_TP_MAX, S_TT_MAX, S_TS_MAX, S_SHARED, S_F_MAX, S_DF_HOVER = range(29, 37)
-SMC_SIZE = 37
+# reciprocals the law multiplies by where the batched law divides (1/c, 1/I_theta, 1/I_phi, 1/(M Mt); an ulp apart)
+S_INV_C, S_INV_IT, S_INV_IP, S_INV_M_MT = range(37, 41)
+SMC_SIZE = 41
 
 # ---- the baselines' constants: the hover thrust (N) first in both layouts ----------------------------------------
 BASE_HOVER = 0
@@ -134,6 +136,8 @@ def _smc_constants(params: smc.ControllerParams) -> np.ndarray:
     values.update({S_LAG: params.actuation_lag_s, S_THRUST_MIN: params.thrust_min, S_THRUST_MAX: params.thrust_max})
     values.update({S_TP_MAX: tp, S_TT_MAX: tt, S_TS_MAX: ts, S_SHARED: params.shared_roll_pitch})
     values.update({S_F_MAX: f_max, S_DF_HOVER: df_hover})
+    values.update({S_INV_C: 1.0 / k.c, S_INV_IT: 1.0 / It, S_INV_IP: 1.0 / Ip})
+    values.update({S_INV_M_MT: 1.0 / (v.mass_vehicle * v.total_mass)})
     return pack_constants(SMC_SIZE, values)
 
 
@@ -262,17 +266,22 @@ def _smc_height(
     n1 = sf * sp + cf * cp * st
     n2 = cf * sp * st - cp * sf
     n3 = cf * ct
-    ty, tx = math.tan(est[EST_ALPHA_Y]), math.tan(est[EST_ALPHA_X])
-    cy, cx = math.cos(est[EST_ALPHA_Y]), math.cos(est[EST_ALPHA_X])
+    # tan and cos of each swing angle from one sine / cosine pair (tan = sin / cos: an ulp from libm's tan), and
+    # products by 1 / |.| where the batched law divides by it: the same expressions to an ulp or so
+    sy, cy = math.sin(est[EST_ALPHA_Y]), math.cos(est[EST_ALPHA_Y])
+    sx, cx = math.sin(est[EST_ALPHA_X]), math.cos(est[EST_ALPHA_X])
+    ty, tx = sy / cy, sx / cx
     dty = est[EST_ALPHA_Y_RATE] / (cy * cy)  # numpy's ** 2 is a product
     dtx = est[EST_ALPHA_X_RATE] / (cx * cx)
     nn = math.sqrt(1.0 + ty * ty + tx * tx)
-    r1, r2, r3 = ty / nn, tx / nn, -1.0 / nn
-    dn = (ty * dty + tx * dtx) / nn
-    d1, d2, d3 = (dty * nn - ty * dn) / (nn * nn), (dtx * nn - tx * dn) / (nn * nn), dn / (nn * nn)
+    inv_n = 1.0 / nn
+    inv_n2 = inv_n * inv_n
+    r1, r2, r3 = ty * inv_n, tx * inv_n, -inv_n
+    dn = (ty * dty + tx * dtx) * inv_n
+    d1, d2, d3 = (dty * nn - ty * dn) * inv_n2, (dtx * nn - tx * dn) * inv_n2, dn * inv_n2
     nr = n1 * r1 + n2 * r2 + n3 * r3
-    M, m, Mt = c[S_M], c[S_MLOAD], c[S_MT]
-    g_z = (Mt * maximum(n3, c[S_COS_MAX]) - m * nr * r3) / (M * Mt)
+    m, Mt = c[S_MLOAD], c[S_MT]
+    g_z = (Mt * maximum(n3, c[S_COS_MAX]) - m * nr * r3) * c[S_INV_M_MT]
     f_z = m * c[S_L] * (d1 * d1 + d2 * d2 + d3 * d3) * r3 / Mt - c[S_G]
     e_z = est[EST_Z] - ref[REF_Z]
     e_zd = est[EST_Z_RATE] - ref[REF_Z + 1]
@@ -322,7 +331,7 @@ def _smc_lead(c: np.ndarray, est: np.ndarray, ref: np.ndarray, ie: int, ir: int,
     e4, e5 = est[ie + 4] - ref[ir + 4], est[ie + 5] - ref[ir + 5]
     e6 = c[S_C] * tilt_acc - c[S_W2] * est[ie + 4] - ref[ir + 6]
     dv = -K5 * e6 - K4 * e5 - K3 * e4 - K2 * e3 - K1 * e2 - K0 * e1
-    return c[S_LAG] * (dv + c[S_W2] * est[ie + 5]) / c[S_C]
+    return c[S_LAG] * (dv + c[S_W2] * est[ie + 5]) * c[S_INV_C]
 
 
 @inline_kernel
@@ -371,8 +380,8 @@ def smc_step(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray, ref: np
     vx, int_fx = _smc_axis(c, dt, mem[M_INT_FX], est, ref, EST_FX, REF_FX, smooth)
     vy, int_fy = _smc_axis(c, dt, mem[M_INT_FY], est, ref, EST_FY, REF_FY, smooth)
     # the commanded world tilt acceleration n'' = (v + w2 F^(4)) / c, led by the actuation lag's model
-    nddx = (vx + c[S_W2] * est[EST_FX + 4]) / c[S_C]
-    nddy = (vy + c[S_W2] * est[EST_FY + 4]) / c[S_C]
+    nddx = (vx + c[S_W2] * est[EST_FX + 4]) * c[S_INV_C]
+    nddy = (vy + c[S_W2] * est[EST_FY + 4]) * c[S_INV_C]
     phi, theta, psi = est[EST_PHI], est[EST_THETA], est[EST_PSI]
     sp, cp = math.sin(psi), math.cos(psi)
     lag = c[S_LAG]
@@ -383,7 +392,7 @@ def smc_step(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray, ref: np
         a = mem[M_LAG_A]
         tp_act = mem[M_TP_ACT] + a * (mem[M_TP_CMD] - mem[M_TP_ACT])
         tt_act = mem[M_TT_ACT] + a * (mem[M_TT_CMD] - mem[M_TT_ACT])
-        a1, a2 = tt_act / c[S_IT], tp_act / c[S_IP]  # delivered [theta'', -phi''] = (a1, -a2)
+        a1, a2 = tt_act * c[S_INV_IT], tp_act * c[S_INV_IP]  # delivered [theta'', -phi''] = (a1, -a2)
         nddx = nddx + _smc_lead(c, est, ref, EST_FX, REF_FX, cp * a1 + sp * a2)
         nddy = nddy + _smc_lead(c, est, ref, EST_FY, REF_FY, sp * a1 - cp * a2)
     # the heading-aligned tilt t = [theta, -phi]: t'' = Rz(-psi) n'' - 2 w J t' - w' J t + w^2 t
