@@ -195,8 +195,8 @@ def law_constants(law: str, vehicle: Vehicle, params: smc.ControllerParams) -> t
 
 def law_memory(code: int, c: np.ndarray) -> np.ndarray:
     """A run's memory before its first tick for the law ``code`` with constants ``c`` (checked against the code):
-    smc's 8 zeros (and its lag factor's cache, empty); the baselines' integrators at zero, their last step time NaN (and LQR's delivered thrust and
-    torques NaN: set to the feed-forward at the first step)."""
+    smc's 8 zeros (and its lag factor's cache, empty); the baselines' integrators at zero, their last step time
+    NaN (and LQR's delivered thrust and torques NaN: set to the feed-forward at the first step)."""
     if code not in _SIZES or c.shape != (_SIZES[code],):
         raise ValueError(f"law code {code} with {c.shape} constants: not a pair law_constants gives")
     if code == LAW_SMC:
