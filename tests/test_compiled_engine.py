@@ -98,6 +98,29 @@ def test_runs_with_the_filter_and_the_mixer_equal_the_scalar_path(tmp_path: Path
         assert ref.column("alpha").max() > 0.05
 
 
+def test_figures_without_a_log_equal_the_figures_of_the_logged_run(tmp_path: Path) -> None:
+    """A sweep flies without a log (``log_every = 0``), and its kernel then skips the swing angle's atan2 and the
+    estimate error's hypot where they cannot be a new largest: the figures are those of the same runs flown with
+    the log (every tick's angle taken) bit for bit, and the peak and residual are the logged angle's maxima."""
+    f = _short_file(tmp_path, move=2.0, hold=3.0)
+    # no initial swing: the largest swing then grows during the move, tick after tick (the case the skip must get)
+    f.write_text(f.read_text().replace("high = 0.15}", "high = 0.0}"), encoding="utf-8")
+    cfg = sweep.load_config(f)
+    vehicles, scs, presets, seeds = _drawn(cfg)
+    kw = dict(estimator="kf", actuators="mixer", sensors=presets, seeds=seeds, law="smc")
+    logged = engine.simulate(scs, vehicles, registry.smc_params(V), log_every=1, **kw)
+    bare = engine.simulate(scs, vehicles, registry.smc_params(V), log_every=0, **kw)
+    np.testing.assert_array_equal(bare["fig"], logged["fig"])
+    alpha = logged["alpha"]
+    np.testing.assert_array_equal(bare["fig"][:, engine.FIG_PEAK], alpha.max(axis=0))
+    assert (np.argmax(alpha, axis=0) > 100).all()  # the peak came mid-move, after a hundred growing ticks
+    arrival = scs[0].arrival_time
+    after = logged["t"] >= arrival + 2.0
+    assert after.any() and not after.all()
+    np.testing.assert_array_equal(bare["fig"][:, engine.FIG_RESIDUAL], alpha[after].max(axis=0))
+    assert (bare["fig"][:, engine.FIG_EST_ERR] > 0.0).all()
+
+
 @pytest.mark.parametrize("controller", ["smc", "cascade"])
 def test_compiled_sweep_gives_the_scalar_sweeps_table(tmp_path: Path, controller: str) -> None:
     """``slung sweep`` with the compiled engine writes the scalar engine's table: the same verdicts, the same

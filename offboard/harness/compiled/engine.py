@@ -203,6 +203,8 @@ def fly_run(
     finite = True
     t_prev = 0.0
     lag_dt, lag_a = math.nan, 0.0  # the command lag's last step (s) and its factor
+    top_angle, top_tan2 = math.nan, -1.0  # the largest swing the figures hold (rad) and its tangent squared
+    alpha = 0.0
     ev_i = 0
     step = 0
     li = 0
@@ -241,15 +243,25 @@ def fly_run(
             saturated += 1.0
         # the figures of the tick (offboard.harness.batched.Figures.tick)
         r1, r2, r3 = x[12], x[13], x[14]
-        alpha = math.atan2(math.sqrt(r1 * r1 + r2 * r2), -r3)
+        # the swing angle where it is logged or may be a new largest of the figures that take it (peak, then the
+        # residual from residual_from): below 90 deg, tan^2 alpha = (r1^2 + r2^2) / r3^2 short of the largest's by
+        # far more than rounding means it is not (a NaN or a swing past 90 deg is always taken)
+        after = t >= residual_from
+        top = residual if after else peak
+        if top != top_angle:
+            # (-1: nothing is below it for sure; no largest yet, or one too near 90 deg for the tangent)
+            top_angle, top_tan2 = top, (math.tan(top) ** 2 if 0.0 <= top < 1.5 else -1.0)
+        s2, c2 = r1 * r1 + r2 * r2, r3 * r3
+        if log_every > 0 or not (r3 < 0.0 and s2 < c2 * top_tan2 * (1.0 - 1e-9)):
+            alpha = math.atan2(math.sqrt(s2), -r3)
+            peak = _fmax(peak, alpha)
+            if after:
+                residual = _fmax(residual, alpha)
         # truth's swing angles are atan2(r1, -r3) and atan2(r2, -r3) of this x: the figures' too, not computed twice
         e0 = x[0] + p[cp.P_L] * truth[EST_ALPHA_Y] - ref[tick, REF_FX]
         e1 = x[1] + p[cp.P_L] * truth[EST_ALPHA_X] - ref[tick, REF_FY]
         e2 = x[2] - ref[tick, REF_Z]
         ex, ey = est[EST_FX] - truth[EST_FX], est[EST_FY] - truth[EST_FY]
-        peak = _fmax(peak, alpha)
-        if t >= residual_from:
-            residual = _fmax(residual, alpha)
         sq = e0 * e0 + e1 * e1 + e2 * e2
         if math.isfinite(sq):
             sq_sum = sq_sum + sq
