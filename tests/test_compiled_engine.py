@@ -102,7 +102,7 @@ def test_figures_without_a_log_equal_the_figures_of_the_logged_run(tmp_path: Pat
     """A sweep flies without a log (``log_every = 0``), and its kernel then skips the swing angle's atan2 and the
     estimate error's hypot where they cannot be a new largest: the figures are those of the same runs flown with
     the log (every tick's angle taken) bit for bit, and the peak and residual are the logged angle's maxima."""
-    f = _short_file(tmp_path, move=2.0, hold=3.0)
+    f = _short_file(tmp_path, move=4.0, hold=3.0)
     # no initial swing: the largest swing then grows during the move, tick after tick (the case the skip must get)
     f.write_text(f.read_text().replace("high = 0.15}", "high = 0.0}"), encoding="utf-8")
     cfg = sweep.load_config(f)
