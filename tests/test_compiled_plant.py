@@ -176,3 +176,18 @@ def test_truth_state_equals_the_batched_truth_state() -> None:
         for name, i in (("z", lay.EST_Z), ("psi_rate", lay.EST_PSI_RATE), ("alpha_x_rate", lay.EST_ALPHA_X_RATE)):
             assert out[i] == pytest.approx(want[name][b], rel=1e-14, abs=1e-14)
     assert math.isfinite(out.sum())
+
+
+def test_the_kernels_wrap_angle_equals_the_scalar_paths_bit_for_bit() -> None:
+    """``layout.wrap_angle`` (fmod only outside +-2 pi) gives ``estimators.model.frames.wrap_angle``'s value to the
+    last bit and sign, in range and far outside it, at the edges of (-pi, pi], and for inf and NaN."""
+    from estimators.model.frames import wrap_angle as scalar
+    from offboard.harness.compiled.layout import wrap_angle
+
+    edges = [math.pi, -math.pi, 0.0, -0.0, 2 * math.pi, -2 * math.pi, 3 * math.pi, -3 * math.pi, 1e-300, 1e300]
+    edges += [float(np.nextafter(math.pi, 0.0)), float(np.nextafter(-math.pi, 0.0)), float(np.nextafter(math.pi, 4))]
+    xs = [*RNG.uniform(-30.0, 30.0, 20000), *RNG.uniform(-1e6, 1e6, 200), *edges, *(-e for e in edges)]
+    for x in xs:
+        got, want = wrap_angle(x), scalar(x)
+        assert got == want and math.copysign(1.0, got) == math.copysign(1.0, want), x
+    assert all(math.isnan(wrap_angle(x)) and math.isnan(scalar(x)) for x in (math.inf, -math.inf, math.nan))

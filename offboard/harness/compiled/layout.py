@@ -67,12 +67,16 @@ def inline_kernel(fn):  # type: ignore[no-untyped-def]
 @inline_kernel
 def wrap_angle(a: float) -> float:
     """``estimators.model.frames.wrap_angle`` (and ``batched_kf.wrap_angles``): ``a`` (rad) into (-pi, pi], by
-    ``fmod`` (exact; numba has no ``math.fmod``, ``np.fmod`` of floats is C's). ``fmod(w, 2 pi)`` of a ``w`` already
-    in [0, 2 pi) is ``w`` itself, so that case (nearly every call) skips the call into numba's C helper."""
+    ``fmod`` (exact; numba has no ``math.fmod``, ``np.fmod`` of floats is C's). ``fmod(w, 2 pi)`` of ``|w| < 2 pi``
+    is ``w`` itself, so nearly every call needs no fmod at all; and LLVM, left a plain ``if`` around the call, makes
+    it unconditional (it counts a call to a pure function as cheap to speculate), so the call sits behind a loop
+    that it does not speculate."""
     two_pi = 2.0 * math.pi
     w = a + math.pi
-    if not (w >= 0.0 and w < two_pi):
+    while not abs(w) < two_pi:  # (once at most: fmod's result is below 2 pi; NaN and inf: fmod gives NaN)
         w = np.fmod(w, two_pi)
+        if w != w:
+            break
     if w <= 0.0:
         w = w + two_pi
     return w - math.pi
