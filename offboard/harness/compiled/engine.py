@@ -120,10 +120,9 @@ def _sample_due(
         if j >= rec_start[kind + 1] or rec_step[j] != step:
             continue
         if kind == IMU and not have_deriv:
-            cp.derivative_at(x, u, p, trig[0], trig[1], trig[2], trig[3], trig[4], trig[5], deriv)
+            cp.derivative_at(x, u, p, cp.trig_of(trig), deriv)
             have_deriv = True
-        sf, cf, st, ct, sp, cpsi = trig[0], trig[1], trig[2], trig[3], trig[4], trig[5]
-        cp.measure_at(kind, x, sf, cf, st, ct, sp, cpsi, deriv, p[cp.P_G], bias, rec_noise[j], rec_val[j])
+        cp.measure_at(kind, x, cp.trig_of(trig), deriv, p[cp.P_G], bias, rec_noise[j], rec_val[j])
         next_rec[kind] = j + 1
 
 
@@ -290,7 +289,7 @@ def fly_run(
                 cpx.px4_step(px_c, px_s, x, u)
             cp.apply_drag(u, x, dist[0:3], dist[6:9], p)
             cp.rk4_step_trig(x, u, p, plant_dt, work, trig)
-            tens = cp.tension_at(x, u, p, trig[0], trig[1], trig[2], trig[3], trig[4], trig[5])
+            tens = cp.tension_at(x, u, p, cp.trig_of(trig))
             if tens <= 0.0:
                 slack += 1
             min_tension = minimum(min_tension, tens)

@@ -83,9 +83,7 @@ TRIG_SIZE = 6  # sin phi, cos phi, sin theta, cos theta, sin psi, cos psi
 def angle_trig(x: np.ndarray, trig: np.ndarray) -> None:
     """The sines and cosines of the state's Euler angles ``x[6:9]`` (rad) into ``trig`` (``TRIG_SIZE``): what
     :func:`derivative`, :func:`tension` and :func:`measure` would each compute from ``x``, computed once."""
-    trig[0], trig[1] = math.sin(x[6]), math.cos(x[6])
-    trig[2], trig[3] = math.sin(x[7]), math.cos(x[7])
-    trig[4], trig[5] = math.sin(x[8]), math.cos(x[8])
+    trig[0], trig[1], trig[2], trig[3], trig[4], trig[5] = attitude_trig(x)
 
 
 #: the largest angle step (rad) :func:`_shifted` takes by its series; beyond it (a run tumbling at 60 rad/s or more
@@ -116,26 +114,25 @@ def _shifted(a: float, s: float, c: float, d: float) -> tuple[float, float]:
 @pure_kernel
 def derivative(x: np.ndarray, u: np.ndarray, p: np.ndarray, out: np.ndarray) -> None:
     """``sim_bridge.plant.dynamics.derivative`` (paper attitude model, a load of mass > 0) into ``out`` (18,)."""
-    sf, cf = math.sin(x[6]), math.cos(x[6])
-    st, ct = math.sin(x[7]), math.cos(x[7])
-    sp, cp = math.sin(x[8]), math.cos(x[8])
-    derivative_at(x, u, p, sf, cf, st, ct, sp, cp, out)
+    derivative_at(x, u, p, attitude_trig(x), out)
 
 
 @inline_kernel
-def derivative_at(
-    x: np.ndarray,
-    u: np.ndarray,
-    p: np.ndarray,
-    sf: float,
-    cf: float,
-    st: float,
-    ct: float,
-    sp: float,
-    cp: float,
-    out: np.ndarray,
-) -> None:
-    """:func:`derivative` with the sines and cosines of ``x``'s roll, pitch and yaw given."""
+def attitude_trig(x: np.ndarray) -> tuple:
+    """``(sin phi, cos phi, sin theta, cos theta, sin psi, cos psi)`` of the state ``x`` from libm."""
+    return math.sin(x[6]), math.cos(x[6]), math.sin(x[7]), math.cos(x[7]), math.sin(x[8]), math.cos(x[8])
+
+
+@inline_kernel
+def trig_of(trig: np.ndarray) -> tuple:
+    """The six values of a ``trig`` array (:func:`angle_trig`) as the tuple the ``*_at`` kernels take."""
+    return trig[0], trig[1], trig[2], trig[3], trig[4], trig[5]
+
+
+@inline_kernel
+def derivative_at(x: np.ndarray, u: np.ndarray, p: np.ndarray, sc: tuple, out: np.ndarray) -> None:
+    """:func:`derivative` with ``sc`` the sines and cosines of ``x``'s attitude (:func:`attitude_trig`'s order)."""
+    sf, cf, st, ct, sp, cp = sc
     r1, r2, r3 = x[12], x[13], x[14]
     d1, d2, d3 = x[15], x[16], x[17]
     M, m, l = p[P_M], p[P_m], p[P_L]
@@ -194,14 +191,11 @@ def rk4_step_trig(x: np.ndarray, u: np.ndarray, p: np.ndarray, h: float, work: n
     left as those of the new ``x``: the stages' from them by :func:`_shifted`, so a step calls libm three times
     (the new state's) instead of twelve; the caller's :func:`tension_at` and :func:`measure` read them too."""
     k1, k2, k3, k4, y = work[0], work[1], work[2], work[3], work[4]
-    derivative_at(x, u, p, trig[0], trig[1], trig[2], trig[3], trig[4], trig[5], k1)
+    derivative_at(x, u, p, trig_of(trig), k1)
     hh = 0.5 * h
-    sf, cf, st, ct, sp, cp = _stage(x, k1, hh, trig, y)
-    derivative_at(y, u, p, sf, cf, st, ct, sp, cp, k2)
-    sf, cf, st, ct, sp, cp = _stage(x, k2, hh, trig, y)
-    derivative_at(y, u, p, sf, cf, st, ct, sp, cp, k3)
-    sf, cf, st, ct, sp, cp = _stage(x, k3, h, trig, y)
-    derivative_at(y, u, p, sf, cf, st, ct, sp, cp, k4)
+    derivative_at(y, u, p, _stage(x, k1, hh, trig, y), k2)
+    derivative_at(y, u, p, _stage(x, k2, hh, trig, y), k3)
+    derivative_at(y, u, p, _stage(x, k3, h, trig, y), k4)
     h6 = h / 6.0
     for i in range(18):
         x[i] = x[i] + h6 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
@@ -219,17 +213,13 @@ def rk4_step_trig(x: np.ndarray, u: np.ndarray, p: np.ndarray, h: float, work: n
 @pure_kernel
 def tension(x: np.ndarray, u: np.ndarray, p: np.ndarray) -> float:
     """``sim_bridge.plant.dynamics.tension``: the cable's tension, N (<= 0: slack)."""
-    sf, cf = math.sin(x[6]), math.cos(x[6])
-    st, ct = math.sin(x[7]), math.cos(x[7])
-    sp, cp = math.sin(x[8]), math.cos(x[8])
-    return tension_at(x, u, p, sf, cf, st, ct, sp, cp)
+    return tension_at(x, u, p, attitude_trig(x))
 
 
 @inline_kernel
-def tension_at(
-    x: np.ndarray, u: np.ndarray, p: np.ndarray, sf: float, cf: float, st: float, ct: float, sp: float, cp: float
-) -> float:
-    """:func:`tension` with the sines and cosines of ``x``'s roll, pitch and yaw given."""
+def tension_at(x: np.ndarray, u: np.ndarray, p: np.ndarray, sc: tuple) -> float:
+    """:func:`tension` with ``sc`` the sines and cosines of ``x``'s attitude (:func:`attitude_trig`'s order)."""
+    sf, cf, st, ct, sp, cp = sc
     n1, n2, n3 = sf * sp + cf * cp * st, cf * sp * st - cp * sf, cf * ct
     r1, r2, r3 = x[12], x[13], x[14]
     d1, d2, d3 = x[15], x[16], x[17]
@@ -270,27 +260,15 @@ def measure(
     ``out``: the state ``x``, the plant derivative ``deriv`` at it (the accelerometer only), gravity ``g``, the
     accelerometer's bias (3,) and the record's noise ``e``. Fields as ``estimators.model.measurements`` after the
     time (position / velocity world NWU; attitude ZYX, body rates FLU; specific force body FLU; load angles)."""
-    sf, cf, st, ct = math.sin(x[6]), math.cos(x[6]), math.sin(x[7]), math.cos(x[7])
-    measure_at(kind, x, sf, cf, st, ct, math.sin(x[8]), math.cos(x[8]), deriv, g, bias, e, out)
+    measure_at(kind, x, attitude_trig(x), deriv, g, bias, e, out)
 
 
 @inline_kernel
 def measure_at(
-    kind: int,
-    x: np.ndarray,
-    sf: float,
-    cf: float,
-    st: float,
-    ct: float,
-    sp: float,
-    cp: float,
-    deriv: np.ndarray,
-    g: float,
-    bias: np.ndarray,
-    e: np.ndarray,
-    out: np.ndarray,
+    kind: int, x: np.ndarray, sc: tuple, deriv: np.ndarray, g: float, bias: np.ndarray, e: np.ndarray, out: np.ndarray
 ) -> None:
-    """:func:`measure` with the sines and cosines of ``x``'s roll, pitch and yaw given."""
+    """:func:`measure` with ``sc`` the sines and cosines of ``x``'s attitude (:func:`attitude_trig`'s order)."""
+    sf, cf, st, ct, sp, cp = sc
     if kind == POS:
         for i in range(6):
             out[i] = x[i] + e[i]
