@@ -2,8 +2,9 @@
 (``offboard.harness.compiled.attitude_law``) against ``offboard.control.smc_attitude.step``, PX4's attitude path
 (``offboard.harness.compiled.px4_loops``) against ``sim_bridge.inner.px4_attitude_path.Px4AttitudePath`` and
 Python's ``math.hypot`` (``layout.py_hypot``), each to the last bit on random inputs; then drawn runs of the default
-sweep file flown by ``engine.simulate`` equal ``sim.run`` flown as ``sweep.run_one`` flies the row (to 1e-9; bit for
-bit on this machine), and ``slung sweep --engine compiled`` writes the scalar engine's table."""
+sweep file flown by ``engine.simulate`` equal ``sim.run`` flown as ``sweep.run_one`` flies the row (to 1e-9: the
+compiled plant's RK4 step is the scalar one's to a few ulp), and ``slung sweep --engine compiled`` writes the
+scalar engine's table."""
 
 from __future__ import annotations
 

@@ -67,6 +67,8 @@ def test_derivative_rk4_and_tension_equal_the_scalar_plant() -> None:
         np.testing.assert_allclose(y, dynamics.rk4_step(list(x), list(u), pp, 1e-3), rtol=1e-13, atol=1e-13)
         assert not np.allclose(y, x)  # it moved
         assert cp.tension(x, u, p) == pytest.approx(dynamics.tension(list(x), list(u), pp), rel=1e-15, abs=1e-15)
+    with pytest.raises(ValueError, match="at least"):  # the attitude's sines live in a sixth row
+        cp.rk4_step(x.copy(), u, p, 1e-3, np.empty((5, 18)))
 
 
 def test_rk4_stage_sines_by_angle_addition_equal_libm_and_fall_back_beyond_the_series_range() -> None:

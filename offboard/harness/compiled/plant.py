@@ -1,6 +1,9 @@
 """The vehicle's side of a compiled run: the plant (``sim_bridge.plant.dynamics``), its still-air drag, the cable
 tension, the sensors' values (``sim_bridge.plant.sensors``), the sweep's gust and the four-motor mixer
-(``sim_bridge.inner.airframe.Mixer``), each for one run, with the scalar path's expressions in its order.
+(``sim_bridge.inner.airframe.Mixer``), each for one run, with the scalar path's expressions in its order, except
+where speed asked for the same equations in other operations: the derivative multiplies by reciprocals where the
+scalar path divides, and the RK4 stages take their sines and cosines by angle addition (:func:`rk4_step_trig`):
+an RK4 step equals the scalar one to a few ulp, not to the bit (``tests/test_compiled_plant.py``).
 
 State ``x`` (18,) and input ``u`` (13,) are the plant's vectors (``sim_bridge.plant.dynamics``: world NWU, SI, Euler
 angles ZYX in rad, the cable's unit direction ``r`` from vehicle to load and its rate). The true vehicle's constants
@@ -86,8 +89,8 @@ def angle_trig(x: np.ndarray, trig: np.ndarray) -> None:
     trig[0], trig[1], trig[2], trig[3], trig[4], trig[5] = attitude_trig(x)
 
 
-#: the largest angle step (rad) :func:`_shifted` takes by its series; beyond it (a run tumbling at 60 rad/s or more
-#: over half a millisecond) it asks libm
+#: the largest angle step (rad) :func:`_shifted` takes by its series; beyond it libm (at a 1 ms step: from 60 rad/s
+#: for the two half-step stages, 30 rad/s for the full-step one, a run tumbling)
 _SERIES_STEP = 0.03
 
 
@@ -168,7 +171,9 @@ def derivative_at(x: np.ndarray, u: np.ndarray, p: np.ndarray, sc: tuple, out: n
 @pure_kernel
 def rk4_step(x: np.ndarray, u: np.ndarray, p: np.ndarray, h: float, work: np.ndarray) -> None:
     """``sim_bridge.plant.dynamics.rk4_step`` in place on ``x`` (input held over ``h`` s, the cable projected back
-    onto ``|r| = 1``, ``r . r' = 0``); ``work`` (6, 18) is scratch."""
+    onto ``|r| = 1``, ``r . r' = 0``); ``work`` (6, 18) is scratch (its last row the attitude's sines)."""
+    if work.shape[0] < 6 or work.shape[1] < 18:
+        raise ValueError("rk4_step: work must be at least (6, 18)")
     trig = work[5, 0:TRIG_SIZE]
     angle_trig(x, trig)
     rk4_step_trig(x, u, p, h, work, trig)
