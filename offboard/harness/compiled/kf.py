@@ -558,7 +558,9 @@ def kf_push_command(
             n[N_THRUST_POS] = pos + 1 if pos + 1 < n_thrust else 0  # (pos + 1) % n_thrust, without a division
     t1, t2 = tau_theta / c[C_I_THETA], -tau_phi / c[C_I_PHI]
     psi = f[_HD + B_X]
-    if psi != f[F_PUSH_PSI]:  # (a NaN heading is recomputed every time: cos and sin give NaN again)
+    cached = f[F_PUSH_PSI]
+    # (a NaN heading is recomputed every time: cos and sin give NaN again; -0.0 is not +0.0 here: sin keeps the sign)
+    if psi != cached or math.copysign(1.0, psi) != math.copysign(1.0, cached):
         f[F_PUSH_PSI], f[F_PUSH_COS], f[F_PUSH_SIN] = psi, math.cos(psi), math.sin(psi)
     cp, sp = f[F_PUSH_COS], f[F_PUSH_SIN]
     if math.isfinite(tau_phi) and math.isfinite(tau_theta):
