@@ -83,11 +83,14 @@ def test_rk4_stage_sines_by_angle_addition_equal_libm_and_fall_back_beyond_the_s
     v = _vehicles(1)[0]
     p, pp = cp.plant_constants(v), dynamics.plant_params(v, "paper")
     x, u = _state(), _input()
-    x[9:12] = (100.0, -80.0, 90.0)  # h/2 * rate = 0.05 rad > the series' 0.03
-    y = x.copy()
-    cp.rk4_step(y, u, p, 1e-3, np.empty((6, 18)))
-    np.testing.assert_allclose(y, dynamics.rk4_step(list(x), list(u), pp, 1e-3), rtol=1e-13, atol=1e-13)
-    assert abs(y[6] - x[6]) > 0.09  # it turned through the fallback's range
+    # 100 rad/s: every stage beyond the series' 0.03 rad (h/2 * rate = 0.05); 40 rad/s: the half steps by the series
+    # (0.02), the full step by libm (0.04)
+    for rate, turned in ((100.0, 0.09), (40.0, 0.035)):
+        x[9:12] = (rate, -0.8 * rate, 0.9 * rate)
+        y = x.copy()
+        cp.rk4_step(y, u, p, 1e-3, np.empty((6, 18)))
+        np.testing.assert_allclose(y, dynamics.rk4_step(list(x), list(u), pp, 1e-3), rtol=1e-13, atol=1e-13)
+        assert abs(y[6] - x[6]) > turned, rate
 
 
 def test_drag_equals_the_scalar_drag_and_leaves_slots_without_it() -> None:
