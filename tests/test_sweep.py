@@ -217,6 +217,28 @@ def test_sweep_file_errors_are_user_errors(tmp_path: Path) -> None:
         sweep.load_config(tmp_path / "missing.toml")
 
 
+def test_sweep_says_when_the_files_move_is_beyond_the_vehicle(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """The file's move is checked before the runs (``offboard.control.feasibility``, as ``slung sim`` checks its
+    reference): 3 m in 1 s asks the paper's vehicle for more swing, tilt and thrust than it has, which the sweep says
+    on stderr and records in the summary, and still flies; the default 4 s move passes without a word."""
+    for move, hold, feasible in ((1.0, 0.5, False), (4.0, 0.2, True)):
+        (tmp_path / str(move)).mkdir()
+        f = _short_file(tmp_path / str(move), engine="scalar", estimator="truth", move=move, hold=hold)
+        out = tmp_path / str(move) / "out"
+        s = execute(1, ["cascade"], out, file=str(f), workers=0, figures=False, progress=False)
+        err = capsys.readouterr().err
+        said = [ln for ln in err.splitlines() if ln.startswith("feasibility check of the file's move")]
+        summary = json.loads((out / "summary.json").read_text())
+        assert s["reference_feasibility"]["feasible"] is feasible
+        assert summary["reference_feasibility"] == s["reference_feasibility"]
+        assert len(said) == len(summary["reference_feasibility"]["messages"])
+        if feasible:
+            assert said == []
+        else:
+            assert any("infeasible: swing" in ln for ln in said) and any("thrust" in ln for ln in said)
+        assert s["this_invocation"]["runs"] == 1  # flown all the same
+
+
 def test_draws_depend_on_the_run_only_and_cover_the_ranges() -> None:
     cfg = sweep.load_config(None)
     a = [sweep.draw(cfg, r, V) for r in range(200)]

@@ -460,6 +460,21 @@ def engine_for(config: SweepConfig, controller: str) -> str:
     return "batched" if config.engine == "batched" and controller in BATCHED_LAWS else "scalar"
 
 
+def reference_feasibility(config: SweepConfig) -> Any:
+    """The pre-flight feasibility check (``offboard.control.feasibility.check_reference``, as ``slung sim`` and
+    ``slung fly`` run it) of the file's move for its nominal vehicle and the sliding-mode law's limits: what the
+    reference asks of the vehicle before any draw moves it (the draws leave the reference alone). A move past the
+    limits (3 m in 2 s asks for a 1.2 rad swing) makes every controller's runs fail for the move's sake."""
+    from estimators.model.vehicle import load_vehicle
+    from offboard.control.controllers import registry
+    from offboard.control.feasibility import FeasibilityLimits, check_reference
+
+    nominal = load_vehicle(config.vehicle_file)
+    sc = scenario(config, draw(config, 0, nominal))
+    limits = FeasibilityLimits.from_config(registry.smc_params(nominal))
+    return check_reference(sc.reference, sc.duration, nominal, limits)
+
+
 def single_run_speed(config: SweepConfig) -> dict[str, float]:
     """The baseline measured beside a sweep: run 0 of the sliding-mode law through the scalar path, as the
     scalar engine flies it (``run_one``: the file's estimator, sensors and actuators); simulated seconds per

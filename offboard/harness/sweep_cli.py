@@ -101,6 +101,9 @@ def execute(
     chunk = chunk or CHUNK.get(config.engine, 10)
     if chunk < 1:
         raise UserError(f"--chunk must be >= 1, got {chunk}")
+    feasibility = sweep.reference_feasibility(config)
+    for msg in feasibility.messages:  # warnings only: a sweep may explore a hard move, but should say it is one
+        print(f"feasibility check of the file's move (nominal vehicle): {msg}", file=sys.stderr)
     out = prepare_output_dir(out_dir)
     cfg_dict = config.to_dict()
     _check_same_sweep(out, cfg_dict)
@@ -169,6 +172,7 @@ def execute(
     summary["sim_seconds_per_wall_second"] = (sim_s / wall) if finished else None
     summary["sim_seconds_per_cpu_second"] = (sim_s / cpu_s) if finished and cpu_s > 0 else None
     summary["single_run_baseline"] = baseline
+    summary["reference_feasibility"] = {"feasible": feasibility.feasible, "messages": list(feasibility.messages)}
     summary["engine"] = config.engine
     summary["engine_by_controller"] = {c: sweep.engine_for(config, c) for c in controllers}
     summary["scheduler"] = scheduler or (f"local cluster, {workers} workers" if workers else "local cluster")
