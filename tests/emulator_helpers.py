@@ -49,6 +49,18 @@ def emulator_process(
     return subprocess.Popen(cmd, cwd=ROOT, stdout=stdout, stderr=stderr, text=True)
 
 
+def stop_emulator_process(proc: subprocess.Popen, timeout: float = 10.0) -> None:
+    """SIGTERM an :func:`emulator_process` (it writes its summary and ends) and wait for it; killed if it has not
+    ended within ``timeout`` s."""
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 class Emu:
     """``python -m sim_bridge.emulator_cli`` sending to a pymavlink client listening on a free port."""
 

@@ -20,7 +20,7 @@ from typing import Any
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
-from emulator_helpers import UdpRelay, emulator_process
+from emulator_helpers import UdpRelay, emulator_process, stop_emulator_process
 from pymavlink import mavutil
 
 from offboard.flight.fly_cli import fly
@@ -70,13 +70,7 @@ def start_emulator(port: int, *extra: str, summary: Path) -> subprocess.Popen:
 
 
 def stop_emulator(proc: subprocess.Popen, summary: Path) -> dict:
-    proc.send_signal(signal.SIGTERM)
-    try:
-        proc.wait(timeout=10.0)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+    stop_emulator_process(proc)
     return json.loads(summary.read_text())
 
 

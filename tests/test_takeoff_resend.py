@@ -7,11 +7,10 @@ vehicle that has not climbed within 5 s gets the command again and the flight co
 from __future__ import annotations
 
 import argparse
-import signal
 import subprocess
 from pathlib import Path
 
-from emulator_helpers import UdpRelay, emulator_process
+from emulator_helpers import UdpRelay, emulator_process, stop_emulator_process
 from pymavlink.dialects.v20 import common as mavlink2
 
 from offboard.flight.fly_cli import fly
@@ -56,12 +55,7 @@ def test_a_lost_takeoff_command_is_sent_again_and_the_flight_completes(tmp_path:
     try:
         m, _ = fly(args, lockstep=False, quiet=True)
     finally:
-        emu.send_signal(signal.SIGINT)
-        try:
-            emu.wait(timeout=10.0)
-        finally:
-            if emu.poll() is None:
-                emu.kill()
+        stop_emulator_process(emu)
         relay.stop = True
     assert relay.dropped == 5 and relay.passed >= 1  # the first command never arrived; a later one did
     assert m["flight"]["ended_by"] == "completed", m["flight"]
