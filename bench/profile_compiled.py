@@ -2,7 +2,7 @@
 code named.
 
 numba's JIT code has no symbols, so ``perf report`` shows bare addresses for most of a sweep. This script compiles
-(or loads) the engine's kernels, writes ``/tmp/perf-PID.map`` (the JIT map ``perf report`` reads: start, size and
+the engine's kernels, writes ``/tmp/perf-PID.map`` (the JIT map ``perf report`` reads: start, size and
 name of every compiled function of ``offboard.harness.compiled``), prints its PID, waits ``--wait`` s for a
 profiler to attach, then flies ``--runs`` runs of the default sweep file for ``--controller``:
 
@@ -12,7 +12,8 @@ profiler to attach, then flies ``--runs`` runs of the default sweep file for ``-
 
 Functions numba inlined (``layout.inline_kernel``) count in their caller. Only functions compiled in this process
 have addresses numba can give: a kernel loaded from numba's cache has none, so the script runs with a cache
-directory of its own, emptied first (``NUMBA_CACHE_DIR``, set before numba is imported; a minute of compiling).
+directory of its own, empty, removed at the end (``NUMBA_CACHE_DIR``, set before numba is imported; a minute of
+compiling).
 """
 
 from __future__ import annotations
@@ -67,15 +68,22 @@ def readable(mangled: str) -> str:
 
 
 def main() -> int:
+    with tempfile.TemporaryDirectory(prefix="slung-profile-numba-") as cache:
+        # before numba's import (the laws' names below import it): compile here, so every function has an address
+        os.environ["NUMBA_CACHE_DIR"] = cache
+        return _profile()
+
+
+def _profile() -> int:
+    from offboard.harness.compiled.inputs import COMPILED_LAWS
+
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=2000, help="runs of the default sweep file to fly")
-    parser.add_argument("--controller", default="smc", help="the sweep's row to fly")
+    parser.add_argument("--controller", default="smc", choices=COMPILED_LAWS, help="the sweep's row to fly")
     parser.add_argument("--wait", type=float, default=3.0, help="seconds to wait for a profiler to attach")
     args = parser.parse_args()
     if args.runs < 1 or args.wait < 0.0:
         parser.error("--runs must be at least 1 and --wait not negative")
-    cache = Path(tempfile.mkdtemp(prefix="slung-profile-numba-"))
-    os.environ["NUMBA_CACHE_DIR"] = str(cache)  # before numba's import: compile here, so every function has an address
 
     from offboard.harness import sweep
     from offboard.harness.compiled import engine
