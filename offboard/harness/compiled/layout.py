@@ -111,6 +111,13 @@ _NO_NRT = {"_nrt": False} if hasattr(numba.core.cpu.CPUTargetOptions, "_nrt") el
 #: of 32 s. Callable from kernels that count references and from Python alike.
 pure_kernel = numba.njit(cache=True, error_model="numpy", nogil=True, **_NO_NRT)
 
+#: ``pure_kernel`` that lets LLVM fuse a multiply and an add into one FMA instruction (``fastmath={"contract"}``,
+#: the one fast-math flag that only removes a rounding: no reordering, no approximation, NaN and inf kept). For
+#: the plant's RK4 only, where it takes 20 % off the step (106 -> 86 ns on this machine, 6 Dec 2026) and its
+#: tests compare with the scalar plant to a few ulp anyway; not for the kernels tested bit for bit against the
+#: scalar path (the filter, the laws, PX4's loops), whose last bits an FMA would change.
+contracted_kernel = numba.njit(cache=True, error_model="numpy", nogil=True, fastmath={"contract"}, **_NO_NRT)
+
 
 def pack_constants(size: int, values: dict[int, float]) -> np.ndarray:
     """A kernel's constants vector of ``size`` floats from ``{index: value}``; every index given once (a layout whose

@@ -36,6 +36,7 @@ from offboard.harness.compiled.layout import (
     EST_Z_RATE,
     LOAD,
     POS,
+    contracted_kernel,
     inline_kernel,
     maximum,
     minimum,
@@ -190,7 +191,7 @@ def _stage(x: np.ndarray, k: np.ndarray, c: float, trig: np.ndarray, y: np.ndarr
     return sf, cf, st, ct, sp, cp
 
 
-@pure_kernel
+@contracted_kernel
 def rk4_step_trig(x: np.ndarray, u: np.ndarray, p: np.ndarray, h: float, work: np.ndarray, trig: np.ndarray) -> None:
     """:func:`rk4_step` with ``trig`` (``TRIG_SIZE``) the sines and cosines of ``x``'s attitude (:func:`angle_trig`),
     left as those of the new ``x``: the stages' from them by :func:`_shifted`, so a step calls libm three times
