@@ -60,11 +60,30 @@ def test_compare_writes_the_table_json_and_series(tmp_path: Path, capsys: pytest
         for key in ("peak_swing_rad", "residual_swing_rad", "settle_s", "tracking_rms_m", "overshoot_m"):
             assert key in figs
         assert figs["peak_swing_rad"] > 0.005  # the gust moved the load
+    cases = json.loads((tmp_path / "compare_cases.json").read_text())
+    assert cases["reference_feasibility"] == {"gust": {"feasible": True, "messages": []}}  # a hover: nothing asked
+    assert "feasibility check" not in captured.err
     series = (tmp_path / "compare_series.csv").read_text().splitlines()
     assert series[0].startswith("case,controller,t,alpha")
     assert len(series) > 100
     with pytest.raises(UserError):
         compare.cases("slalom")
+
+
+def test_the_fixed_moves_are_checked_against_the_vehicle_before_they_are_flown() -> None:
+    """compare's moves are fixed, its vehicles are not: on the paper's vehicle every rest-to-rest move is feasible;
+    on ArduPilot SITL's quad with its 1 m cable the 2.5 s move asks for more swing than the limits allow (the
+    cable goes slack), the 6 s move does not. The check is the one ``slung sim`` and ``slung sweep`` run."""
+    from estimators.model.vehicle import load_vehicle
+
+    moves = compare.cases("rest-to-rest")
+    paper = compare.reference_feasibility(moves, Vehicle())
+    assert list(paper) == [c.label for c in moves]
+    assert all(r.feasible for r in paper.values())
+    quad = compare.reference_feasibility(moves, load_vehicle("ardupilot-sitl-quad"))
+    assert not quad["move 2.5 s"].feasible
+    assert any(m.startswith("infeasible: ") for m in quad["move 2.5 s"].messages)
+    assert quad["move 6 s"].feasible
 
 
 def test_compare_json_holds_a_diverged_run_s_infinite_figures_as_null(tmp_path) -> None:

@@ -80,6 +80,10 @@ def run(args: argparse.Namespace) -> int:
             raise UserError("--mavlink flies with the Kalman filter on the emulator's telemetry, cable angle included")
     names = registry.parse_list(args.controllers)
     no_design = designs_missing(names, vehicle, args.flavor if args.mavlink else "px4")
+    feasibility = compare.reference_feasibility(the_cases, vehicle)
+    for label, res in feasibility.items():
+        for msg in res.messages:  # warnings only, as slung sim gives them: compare is where such a move is explored
+            print(f"compare: feasibility check of {label} ({vehicle.name}): {msg}", file=sys.stderr)
     out = prepare_output_dir(args.out)
     config = SimConfig(
         estimator=args.estimator,
@@ -137,6 +141,10 @@ def run(args: argparse.Namespace) -> int:
             "cases": {label: {r.controller: r.figures for r in rs} for label, rs in by_case.items()},
             # controllers flown on a vehicle they have no design for, and why (registry.not_designed_for)
             "not_designed_for_vehicle": no_design,
+            # each case's reference against the vehicle's limits before any flight (compare.reference_feasibility)
+            "reference_feasibility": {
+                label: {"feasible": res.feasible, "messages": list(res.messages)} for label, res in feasibility.items()
+            },
         },
     )
     rows = [r for rs in by_case.values() for r in compare.series_rows(rs)]
