@@ -5,10 +5,10 @@ libm's).
 
 Kernels are numba ``njit`` functions with ``error_model="numpy"`` (a division by zero gives inf or NaN, as numpy
 does, instead of raising: the kernels run inside a simulated run, which reports a non-finite state as diverged)
-and ``cache=True`` (compiled once per machine, then loaded from ``__pycache__``). No ``fastmath``: the kernels
-keep IEEE arithmetic and the scalar path's order of operations (but for the plant's and the ``smc`` law's
-reciprocals and shared sines, a few ulp), so that a run equals the scalar path's to far below 1e-9
-(``tests/test_compiled_engine.py``).
+and ``cache=True`` (compiled once per machine, then loaded from ``__pycache__``). No ``fastmath`` but FMA
+contraction in the plant's RK4 step (``contracted_kernel``): the kernels keep IEEE arithmetic and the scalar path's
+order of operations (but for the plant's FMAs and the plant's and the ``smc`` law's reciprocals and shared sines, a
+few ulp), so that a run equals the scalar path's to far below 1e-9 (``tests/test_compiled_engine.py``).
 
 The estimate vector (``EST_SIZE`` floats): ``estimators.model.control_state.ControlState`` flattened, SI units,
 world NWU frame as in the scalar path: the flat chains ``F_x``, ``F_y`` (orders 0..5) then the named scalars.
