@@ -141,3 +141,31 @@ def test_replay_rebuilds_the_law_that_flew_with_the_drag_bit_for_bit(flight: dic
     agree = json.loads((out / "replay" / "metrics.json").read_text())["live_agreement"]
     ticks = m["loop"]["ticks"]
     assert ticks > 3000 and agree["setpoint_identical"] == agree["estimate_identical"] == ticks, agree
+
+
+def test_the_ulog_keeps_the_cable_sensor_for_replay(flight: dict[str, Any]) -> None:
+    """PX4's own log of the flight (``hil_params`` turns on its debug topics): with the sensor, its ``debug_vect``
+    LOADANG samples come back from the ULog at the sensor's rate as the swing the simulator had at their time; without
+    it, the log has none (the filter then estimates the swing from the IMU, in flight and in replay alike)."""
+    from estimators.model.measurements import LoadAngle
+    from offboard.logs.log_formats import scan_ulog
+
+    ulogs = sorted((flight["out"] / "px4" / "log").glob("*/*.ulg"), key=lambda p: (p.stat().st_mtime, p.name))
+    assert ulogs, "PX4 wrote no ULog"
+    scan = scan_ulog(ulogs[-1])
+    loads = [e.payload for e in scan.events if e.kind == "m" and isinstance(e.payload, LoadAngle)]
+    if not flight["load_sensor"]:
+        assert loads == []
+        return
+    truth = np.genfromtxt(flight["out"] / "truth.csv", delimiter=",", names=True)
+    t = np.array([m.t for m in loads])
+    flying = (t > truth["t_s"][truth["z_m"] > 0.5][0]) & (t < truth["t_s"][-1])
+    assert np.count_nonzero(flying) > 0.8 * 100.0 * DURATION_S  # the 100 Hz sensor over the flight
+    # the total swing of the model-frame plane angles (tan^2 + tan^2 = tan^2 of the swing) against the truth's
+    ax, ay = np.array([m.alpha_x for m in loads]), np.array([m.alpha_y for m in loads])
+    swing = np.arctan(np.hypot(np.tan(ax), np.tan(ay)))[flying]
+    true_swing = np.interp(t[flying], truth["t_s"], truth["swing_rad"])
+    rms = float(np.sqrt(np.mean((swing - true_swing) ** 2)))
+    print(f"\nULog LOADANG: {np.count_nonzero(flying)} samples in flight, {rms:.4f} rad RMS from the simulator's swing")
+    assert float(true_swing.max()) > 0.05  # the move swung the load: the comparison means something
+    assert rms < 0.01  # the sample's age at PX4's reception (a few ms of a swing rate under 1 rad/s)

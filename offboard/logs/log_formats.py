@@ -12,7 +12,11 @@ PX4 ULog topics used
     logs: ``vehicle_attitude.rollspeed``...) -> Attitude; ``vehicle_local_position`` (``x, y, z, vx, vy, vz``) ->
     PositionVelocity; ``sensor_combined`` (``gyro_rad``, ``accelerometer_m_s2``) -> Imu; ``vehicle_status``
     (``arming_state`` 2 = armed, ``nav_state`` names) -> armed and mode; ``vehicle_land_detected`` (``landed``) ->
-    landed state.
+    landed state; ``debug_vect`` named ``LOADANG`` (a cable-angle sensor's DEBUG_VECT as PX4 received it, x / y
+    the swing in the North-Down / East-Down plane, rad, timed at its reception: PX4 keeps no sensor time for it)
+    -> LoadAngle. PX4 logs ``debug_vect`` only with the debug bit of ``SDLOG_PROFILE`` (32), which
+    ``sim_bridge.sitl.px4_hil.hil_params`` sets; a log without it has no cable angle, and its swing is estimated
+    from the IMU, as on a vehicle without the sensor.
 ArduPilot DataFlash messages used
     ``ATT`` (Roll, Pitch, Yaw in degrees) with the body rates of ``RATE`` (``R, P, Y``: the attitude controller's
     achieved rates, the AHRS's bias-corrected gyro, deg/s; centideg/s before ArduPilot 3.4, told apart by their
@@ -43,6 +47,7 @@ from estimators.model.frames import (
     quaternion_to_euler,
 )
 from estimators.model.measurements import Attitude, Imu, PositionVelocity
+from offboard.flight.link.telemetry import LOAD_ANGLE_NAME, load_angle_from_ned, plausible_load_angles
 from offboard.logs.flight_modes import MAV_AUTOPILOT_ARDUPILOT, MAV_AUTOPILOT_PX4
 from offboard.logs.log_inventory import Event, Scan, SystemInfo
 
@@ -91,6 +96,7 @@ ULOG_TOPICS = (
     "sensor_combined",
     "vehicle_status",
     "vehicle_land_detected",
+    "debug_vect",
 )
 
 
@@ -241,6 +247,7 @@ def scan_ulog(path: Path) -> Scan:
             if math.isfinite(sum(m)):
                 b.add("m", t, m)
         b.count("vehicle_local_position", len(ts), ts[0] if ts else None, ts[-1] if ts else None)
+    _scan_ulog_load_angles(ulog, b)
     mav_type: int | None = None
     st = _topic(ulog, "vehicle_status")
     if st is not None:
@@ -275,6 +282,26 @@ def scan_ulog(path: Path) -> Scan:
                 last = state
         b.count("vehicle_land_detected", len(ld["timestamp"]))
     return b.scan(MAV_AUTOPILOT_PX4, mav_type)
+
+
+def _scan_ulog_load_angles(ulog: Any, b: _Builder) -> None:
+    """The cable-angle sensor's samples of a ULog: ``debug_vect`` rows named ``LOADANG`` (every instance: PX4 gives
+    each DEBUG_VECT sender its own) -> LoadAngle, by the same conversion and plausibility check as the live link's."""
+    ts: list[float] = []
+    for d in ulog.data_list:
+        if d.name != "debug_vect" or "name[0]" not in d.data:
+            continue
+        chars = [d.data[f"name[{i}]"].tolist() for i in range(10) if f"name[{i}]" in d.data]
+        xs, ys, times = d.data["x"].tolist(), d.data["y"].tolist(), (d.data["timestamp"] * 1e-6).tolist()
+        for i, t in enumerate(times):
+            name = bytes(c[i] & 0xFF for c in chars).split(b"\0", 1)[0].decode("ascii", "replace")
+            if name != LOAD_ANGLE_NAME or not plausible_load_angles(xs[i], ys[i]):
+                continue
+            b.add("m", t, load_angle_from_ned(t, xs[i], ys[i]))
+            ts.append(t)
+    if ts:
+        ts.sort()
+        b.count("debug_vect", len(ts), ts[0], ts[-1])
 
 
 # ---------------------------------------------------------------------------------------------------------------

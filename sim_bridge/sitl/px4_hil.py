@@ -77,9 +77,12 @@ def hil_params(vehicle: Vehicle) -> dict[str, float]:
     """The PX4 parameters that give PX4's allocator the HIL physics' airframe (``Px4Sitl(params=...)``): the rotors
     where the physics has them (``quad_rotors`` of the vehicle's frame: for X airframe 10040's normalized layout,
     whose directions and spins are the physics'; PX4 normalizes the effectiveness, so the unit arms and KM 0.05
-    stand for the vehicle's arm and moment coefficient as they do for SIH), thrust linear in the motor output, and
-    the hover thrust of the vehicle with its load."""
+    stand for the vehicle's arm and moment coefficient as they do for SIH), thrust linear in the motor output, the
+    hover thrust of the vehicle with its load, and the ULog's debug topics (the cable-angle sensor)."""
     params: dict[str, float] = {"CA_ROTOR_COUNT": 4, "THR_MDL_FAC": 0.0}
+    # PX4's default log profile (1) plus its debug topics (32): the cable-angle sensor's DEBUG_VECT, which PX4
+    # publishes as debug_vect, is then in the ULog and `slung replay` of it has the cable angle
+    params["SDLOG_PROFILE"] = 1 | 32
     for i, r in enumerate(quad_rotors(vehicle.frame)):
         params[f"CA_ROTOR{i}_PX"], params[f"CA_ROTOR{i}_PY"], params[f"CA_ROTOR{i}_KM"] = r.px, r.py, r.km
     hover = vehicle.total_mass * vehicle.gravity / (4.0 * vehicle.motor_thrust_max)

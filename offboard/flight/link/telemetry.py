@@ -96,6 +96,12 @@ def _vehicle_time_us(us: int) -> float:
     return us * 1e-6
 
 
+def plausible_load_angles(swing_n: float, swing_e: float) -> bool:
+    """Whether a LOADANG sample's plane angles (rad) can be a hanging cable's: finite and below 1.5 rad (86 deg)
+    in each plane; a sample that is not is refused, wherever it is read (the live link, a tlog, a ULog)."""
+    return math.isfinite(swing_n) and math.isfinite(swing_e) and abs(swing_n) < 1.5 and abs(swing_e) < 1.5
+
+
 def load_angle_from_ned(t: float, swing_n: float, swing_e: float) -> LoadAngle:
     """LoadAngle (model frame) from the North-Down and East-Down plane swing angles (rad)."""
     rx, ry, rz = ned_to_model_vector(math.tan(swing_n), math.tan(swing_e), 1.0)
@@ -207,7 +213,7 @@ class TelemetryDecoder:
             name = msg.name.decode("ascii", "replace") if isinstance(msg.name, bytes) else str(msg.name)
             if name.rstrip("\x00") != LOAD_ANGLE_NAME:
                 return None
-            if not (math.isfinite(msg.x) and math.isfinite(msg.y) and abs(msg.x) < 1.5 and abs(msg.y) < 1.5):
+            if not plausible_load_angles(msg.x, msg.y):
                 self._count("refused_nonfinite")
                 return None
             m = load_angle_from_ned(_vehicle_time_us(msg.time_usec), msg.x, msg.y)
@@ -227,4 +233,11 @@ class TelemetryDecoder:
         return m
 
 
-__all__ = ["IMU_RANK", "LOAD_ANGLE_NAME", "MESSAGE_IDS", "TelemetryDecoder", "load_angle_from_ned"]
+__all__ = [
+    "IMU_RANK",
+    "LOAD_ANGLE_NAME",
+    "MESSAGE_IDS",
+    "TelemetryDecoder",
+    "load_angle_from_ned",
+    "plausible_load_angles",
+]
