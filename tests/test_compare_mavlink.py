@@ -4,6 +4,7 @@ refused with one line."""
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import sys
@@ -68,6 +69,12 @@ def test_the_same_case_over_mavlink_gives_the_simulations_figures(tmp_path: Path
         )
         flown = compare_mavlink.run_case(case, name, vehicle, args)
         f, s = flown.figures, sim.figures
+        # the row's filter and law as in simulation: the sliding-mode rows feed the external acceleration forward
+        # (registry.filter_tuning) and the attitude-level law leaves the drag to it (registry.drag_in_law)
+        flown_config = json.loads((out / "metrics.json").read_text())["config"]
+        assert flown_config["external_feedforward"] is name.startswith("smc"), (name, flown_config)
+        if name == "smc-attitude":  # (the flag of the attitude-level law; the cascade's setpoints have no drag term)
+            assert flown_config["drag_feedforward"] is False, flown_config
         assert f["completed"], (name, f["ended_by"])
         assert set(s) <= set(f), set(s) - set(f)
         assert f["lower_bound_rad"] == s["lower_bound_rad"]

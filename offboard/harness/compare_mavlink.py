@@ -120,6 +120,9 @@ def run_case(
     The flight's report folder is ``args.out``."""
     from offboard.harness.demo_cli import run_demo
 
+    # the filter tuning the row flies with in simulation (the sliding-mode rows feed the filter's external
+    # acceleration forward, and the attitude-level law then leaves the drag to it): the same over the wire
+    args.external_feedforward = registry.filter_tuning(controller, "kf") is not None
     law = None
     if controller == "smc":
         args.law, args.switching, args.epsilon = "torque", switching, epsilon
