@@ -271,8 +271,9 @@ def test_kernels_replay_the_numpy_filter(case: str) -> None:
 
 
 def test_constants_follow_the_tuning_and_refuse_a_vehicle_without_a_load() -> None:
-    """Every constant slot is filled (NaN-free), the thrust window follows the control rate, and a nominal vehicle
-    without a load is refused as the numpy filter refuses it."""
+    """Every constant slot is filled (NaN-free), the thrust window follows the control rate, a nominal vehicle
+    without a load is refused as the numpy filter refuses it, and so is a tuning without the commanded tilt input
+    (the kernels always take it)."""
     from dataclasses import replace
 
     from offboard.harness.compiled.kf import C_GATE_REOPEN, C_N_THRUST
@@ -284,6 +285,14 @@ def test_constants_follow_the_tuning_and_refuse_a_vehicle_without_a_load() -> No
     assert f.dtype == np.float64 and n.dtype == np.int64 and f.size > 25
     with pytest.raises(ValueError, match="load"):
         kf_constants(replace(V, mass_load=0.0), MeasuredTuning(), load_sensor=False)
+    # a tuning the kernels cannot fly (no commanded tilt input) is refused, not flown as another filter
+    with pytest.raises(ValueError, match="tilt_command"):
+        kf_constants(V, MeasuredTuning(tilt_command=False), load_sensor=True)
+    from estimators.filters.batched_kf import BatchedMeasuredKalman
+
+    with pytest.raises(ValueError, match="tilt_command"):  # nor does the numpy batched filter, whose twin they are
+        BatchedMeasuredKalman(V, 4, load_sensor=True, tuning=MeasuredTuning(tilt_command=False))
+    BatchedMeasuredKalman(V, 4, load_sensor=True, tuning=MeasuredTuning())
 
 
 #: the codes of the recorded calls in :func:`_encoded` (the order of ``_replay``'s branches)

@@ -222,6 +222,8 @@ class BatchedMeasuredKalman:
     ) -> None:
         if not vehicle.mass_load > 0.0:
             raise ValueError("the batched filter needs a nominal vehicle with a load")
+        if not tuning.tilt_command:  # its tilt blocks always take the commanded tilt acceleration as input
+            raise ValueError("the batched filter always takes the commanded tilt acceleration (tuning.tilt_command)")
         self.B = B
         self.tuning = tn = tuning
         self.delay = float(delay_s)

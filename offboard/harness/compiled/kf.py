@@ -71,8 +71,8 @@ C_I_PHI, C_I_THETA, C_MASS_VEHICLE, C_G, C_L, C_M_OVER_M, C_K_L, C_K_G, C_K_C = 
 # the fusion horizon (s) and control rate (Hz) the filter was built for
 C_GATE1, C_GATE3, C_ADAPT_RATE, C_N_THRUST, C_DELAY, C_RATE_HZ = range(9, 15)
 # flags (1.0 / 0.0): load_sensor, tuning.fuse_gyro, thrust_explains_jumps, external_feedforward, tilt_command (the
-# delay, rate, load_sensor and fuse_gyro are the schedule's business; tilt_command is not read: the numpy filter
-# always takes the commanded tilt acceleration, as the default tuning does)
+# delay, rate, load_sensor and fuse_gyro are the schedule's business; tilt_command is not read: the kernels, as
+# the numpy batched filter, always take the commanded tilt acceleration; kf_constants refuses a tuning without it)
 C_LOAD_SENSOR, C_FUSE_GYRO, C_THRUST_JUMPS, C_EXTERNAL_FF, C_TILT_COMMAND = range(15, 20)
 # the tuning's densities and rates (MeasuredTuning's fields of the same names)
 C_Q_V, C_Q_VZ, C_Q_V_NO_IMU, C_Q_B, C_Q_P_MIN, C_Q_P_MAX, C_WANDER_RATE = range(20, 27)
@@ -128,6 +128,8 @@ def kf_constants(
     ``BatchedMeasuredKalman(vehicle, B, load_sensor=..., tuning=..., delay_s=..., rate_hz=...)`` computes them."""
     if not vehicle.mass_load > 0.0:
         raise ValueError("the compiled filter needs a nominal vehicle with a load")
+    if not tuning.tilt_command:  # (C_TILT_COMMAND is recorded, not read: the kernels have no white-n'' branch)
+        raise ValueError("the compiled filter always takes the commanded tilt acceleration (tuning.tilt_command)")
     tn = tuning
     k = flat_constants(vehicle)
     c = np.full(C_SIZE, np.nan)
