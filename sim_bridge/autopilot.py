@@ -57,6 +57,7 @@ from sim_bridge.inner.airframe import (
 )
 from sim_bridge.inner.ardupilot_inner import AttitudeShaper, HoverLearner
 from sim_bridge.inner.autopilot_inner import InnerControl
+from sim_bridge.inner.px4_hover_thrust import HoverThrustEstimator
 from sim_bridge.inner.px4_inner import (
     Px4Allocator,
     Px4AttitudeControl,
@@ -159,6 +160,12 @@ class Autopilot(ModeLogic, InnerControl, TelemetryStreams, SetpointHandlers, Par
         # ArduPilot's input-shaped attitude target and hover-throttle learning (sim_bridge.inner.ardupilot_inner)
         self.ap_shaper = AttitudeShaper()
         self.ap_hover = HoverLearner(self.fl.params["MOT_THST_HOVER"].value if not self.fl.is_px4 else 0.5)
+        # PX4's hover thrust estimator (sim_bridge.inner.px4_hover_thrust); the ArduPilot flavour leaves it unused
+        self.px4_hover = HoverThrustEstimator(
+            vehicle.gravity, self.fl.params["MPC_THR_HOVER"].value if self.fl.is_px4 else 0.5
+        )
+        self.hte_vz_prev: float | None = None  # the estimate's climb rate at the last learning step, m/s
+        self.pos_control_ran = False  # the position or altitude controller ran since the last learning step
         #: ArduPilot: the RC throttle stick 0..1 (RC_CHANNELS_OVERRIDE channel 3; SITL's default input is low)
         self.rc_throttle = 0.0
         self.torque_norm_sp = (0.0, 0.0, 0.0)  # PX4: the rate loop's output, FRD, the allocator's unit torques

@@ -263,6 +263,16 @@ class AttitudeController:
         return (u0 * tm[0], u1 * tm[1], u2 * tm[2])
 
 
+def px4_vertical_integral(int_z: float, gain: float, error: float, acc: float, g: float, dt: float) -> float:
+    """PX4's vertical velocity integrator (``PositionControl``): the climb-rate error ``error`` (m/s, up) times
+    MPC_Z_VEL_I_ACC ``gain`` integrated over ``dt`` unless the acceleration setpoint ``acc`` (m/s^2, up) is at its
+    limit in the error's direction (the thrust saturated: anti-windup), the integral kept within +-g. It integrates
+    far from the setpoint too: a climb held back by a wrong hover thrust is still pushed up."""
+    if (acc >= g and error >= 0.0) or (acc <= -0.8 * g and error <= 0.0):
+        return int_z
+    return min(max(int_z + gain * error * dt, -g), g)
+
+
 class PositionController:
     """Cascaded P position -> PI velocity -> acceleration -> thrust vector, in the model frame (NWU).
 
@@ -286,6 +296,12 @@ class PositionController:
         self.int_x = 0.0
         self.int_y = 0.0
         self.int_z = 0.0
+        #: the last update's vertical acceleration setpoint (m/s^2, up; the integrator is a part of it) and vertical
+        #: thrust (normalized, up): what PX4's hover thrust estimator reads (its local position setpoint)
+        self.acc_up = 0.0
+        self.thrust_up = 0.0
+        #: PX4's vertical integrator (:func:`px4_vertical_integral`) instead of the near-setpoint one
+        self.px4_vertical_integrator = False
 
     def reset(self) -> None:
         """Clear the velocity integrators."""
@@ -324,8 +340,10 @@ class PositionController:
         ay = self.xy_vel_p * ey + self.int_y
         az = self.z_vel_p * ez + self.int_z
         g = self.g
+        if self.px4_vertical_integrator:
+            self.int_z = px4_vertical_integral(self.int_z, self.z_vel_i, ez, az, g, dt)
         # anti-windup: integrate only while the output is not limited
-        if -0.8 * g < az < g and abs(ez) < 0.5:  # and only near the setpoint (no wind-up while braking)
+        elif -0.8 * g < az < g and abs(ez) < 0.5:  # and only near the setpoint (no wind-up while braking)
             self.int_z = min(max(self.int_z + self.z_vel_i * ez * dt, -4.0), 4.0)
         az = min(max(az, -0.8 * g), g)
         hmax = math.tan(self.tilt_max) * (g + az)
@@ -339,7 +357,9 @@ class PositionController:
         n = math.sqrt(tx * tx + ty * ty + tz * tz)
         thrust = n / g * hover_norm
         q = quat_from_thrust_dir_yaw(tx / n, ty / n, tz / n, yaw_sp)
-        return q, min(max(thrust, 0.0), 1.0)
+        thrust = min(max(thrust, 0.0), 1.0)
+        self.acc_up, self.thrust_up = az, thrust * tz / n
+        return q, thrust
 
 
 def px4_thrust_newtons(thrust_norm: float, thrust_max: float) -> float:

@@ -25,8 +25,10 @@ from sim_bridge.autopilot_constants import (
 from sim_bridge.inner.airframe import (
     angle_boost,
     body_rates,
+    px4_vertical_integral,
 )
 from sim_bridge.inner.ardupilot_inner import limit_tilt, throttle_to_actuator, thrust_curve
+from sim_bridge.inner.px4_hover_thrust import IN_AIR_HEIGHT_M, integrator_after_hover_change
 from sim_bridge.inner.px4_inner import Px4Motors, allocate_with_saturation_feedback, configure_px4_loops
 
 log = logging.getLogger("sim_bridge.autopilot")
@@ -48,7 +50,14 @@ class InnerControl:
             pos.xy_speed_max = self._p("MPC_XY_CRUISE")
             pos.z_speed_up, pos.z_speed_down = self._p("MPC_Z_VEL_MAX_UP"), self._p("MPC_Z_VEL_MAX_DN")
             pos.tilt_max = math.radians(min(self._p("MPC_TILTMAX_AIR"), 60.0))
-            self.hover_norm = self._p("MPC_THR_HOVER")
+            pos.px4_vertical_integrator = True
+            # PX4's position controller takes MPC_THR_HOVER at start and when it is set; with MPC_USE_HTE the
+            # hover thrust estimator then takes over in flight (_learn_hover_px4)
+            if changed in (None, "MPC_THR_HOVER") or not self.px4_hover.valid:
+                self.hover_norm = self._p("MPC_THR_HOVER")
+            self.px4_hover.p = {k: self._p(k) for k in self.px4_hover.p}
+            if changed == "MPC_THR_HOVER":
+                self.px4_hover.reset(self.hover_norm)
         else:
             att.att_p = [self._p("ATC_ANG_RLL_P"), self._p("ATC_ANG_PIT_P"), self._p("ATC_ANG_YAW_P")]
             att.rate_p = [self._p("ATC_RAT_RLL_P"), self._p("ATC_RAT_PIT_P"), self._p("ATC_RAT_YAW_P")]
@@ -195,6 +204,7 @@ class InnerControl:
             dt,
             z_speed_up=z_up,
         )
+        self.pos_control_ran = True
         self._track_attitude(x, q, thr * self.tmax, 0.0)
 
     def _vertical_thrust(self, x: Sequence[float], z_sp: float, vz_ff: float, dt: float) -> float:
@@ -203,11 +213,16 @@ class InnerControl:
         vz = vz_ff + pc.z_p * (z_sp - x[2])
         vz = min(max(vz, -pc.z_speed_down), pc.z_speed_up)
         e = vz - x[5]
-        if abs(e) < 0.5:  # integrate near the setpoint only (no wind-up while braking or climbing)
+        g = self.vehicle.gravity
+        if pc.px4_vertical_integrator:
+            pc.int_z = px4_vertical_integral(pc.int_z, pc.z_vel_i, e, pc.z_vel_p * e + pc.int_z, g, dt)
+        elif abs(e) < 0.5:  # integrate near the setpoint only (no wind-up while braking or climbing)
             pc.int_z = min(max(pc.int_z + pc.z_vel_i * e * dt, -4.0), 4.0)
         a = pc.z_vel_p * e + pc.int_z
-        g = self.vehicle.gravity
-        return (g + max(a, -0.8 * g)) / g * self.hover_norm
+        thrust = (g + max(a, -0.8 * g)) / g * self.hover_norm
+        pc.acc_up, pc.thrust_up = max(a, -0.8 * g), thrust
+        self.pos_control_ran = True
+        return thrust
 
     def _althold(self, x: Sequence[float], z_sp: float, vz_ff: float, yaw: float, dt: float, on_ground: bool) -> None:
         if on_ground and z_sp < 0.1 and vz_ff <= 0.0:
@@ -217,10 +232,41 @@ class InnerControl:
         self._track_attitude(x, self._level_q(yaw), min(thr, 1.0) * self.tmax, 0.0)
 
     def _learn_hover(self, x: Sequence[float], dt: float) -> None:
-        """ArduPilot's MOT_THST_HOVER learning (MOT_HOVER_LEARN 2: learned and saved) in a throttle-controlled mode."""
-        if self.fl.is_px4 or not self.armed or self.on_ground or self.mode.kind in ("stabilized", "acro"):
+        """The autopilot's hover thrust learned in flight, every ``dt`` s: PX4's hover thrust estimator
+        (:meth:`_learn_hover_px4`); ArduPilot's MOT_THST_HOVER learning (MOT_HOVER_LEARN 2: learned and saved) in a
+        throttle-controlled mode."""
+        if self.fl.is_px4:
+            self._learn_hover_px4(x, dt)
+            return
+        if not self.armed or self.on_ground or self.mode.kind in ("stabilized", "acro"):
             return
         tilt = math.acos(max(min(math.cos(x[6]) * math.cos(x[7]), 1.0), -1.0))
         if self.ap_hover.update(self.thrust_cmd / self.tmax, x[5], tilt, dt):
             self.params["MOT_THST_HOVER"].value = self.ap_hover.value
             self.hover_norm = self.ap_hover.value
+
+    def _learn_hover_px4(self, x: Sequence[float], dt: float) -> None:
+        """PX4's ``mc_hover_thrust_estimator`` (``sim_bridge.inner.px4_hover_thrust``): fused while armed, in the
+        air and under the position controller (which ran since the last call), from the estimate's vertical
+        acceleration (its climb rate's change over ``dt``) and the controller's vertical thrust; once valid, and
+        with MPC_USE_HTE, the position controller flies with it, its integrator moved so the thrust does not jump.
+        Disarmed: back to MPC_THR_HOVER."""
+        hte = self.px4_hover
+        vz_prev, self.hte_vz_prev = self.hte_vz_prev, x[5]
+        ran, self.pos_control_ran = self.pos_control_ran, False
+        if not self.armed:
+            if hte.h != hte.hover_param or hte.valid:
+                hte.reset(self._p("MPC_THR_HOVER"))
+            return
+        if self.on_ground:
+            hte.in_air = False
+        elif x[2] > IN_AIR_HEIGHT_M:
+            hte.in_air = True
+        if not (hte.in_air and ran and vz_prev is not None):
+            return
+        pc = self.pos
+        hte.update(dt, (x[5] - vz_prev) / dt, pc.thrust_up, math.hypot(x[3], x[4]), x[5])
+        if hte.valid and self._p("MPC_USE_HTE") and hte.h != self.hover_norm:
+            g = self.vehicle.gravity
+            pc.int_z = integrator_after_hover_change(pc.int_z, pc.acc_up, g, self.hover_norm, hte.h)
+            self.hover_norm = hte.h
