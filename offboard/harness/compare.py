@@ -144,19 +144,20 @@ def cases(name: str) -> list[Case]:
     return make()
 
 
-def reference_feasibility(the_cases: list[Case], vehicle: Any) -> dict[str, Any]:
-    """The pre-flight feasibility check (``offboard.control.feasibility.check_reference``, as ``slung sim``, ``slung
-    sweep`` and ``slung fly`` run it) of each case's reference for ``vehicle`` and the sliding-mode law's limits:
-    ``{case label: FeasibilityResult}``. A fixed move may ask more than another vehicle can give (3 m in 2.5 s is
-    a 0.74 rad swing and a slack cable on ArduPilot SITL's quad with its 1 m cable): every row then fails for the
-    move's sake, which the table alone would not say."""
+def smc_feasibility(reference: Any, duration: float, vehicle: Any) -> Any:
+    """The pre-flight feasibility check (``offboard.control.feasibility.check_reference``, as ``slung sim`` and
+    ``slung fly`` run it) of ``reference`` over ``duration`` s for ``vehicle`` and the ``smc`` row's limits: what a
+    fixed move asks of a vehicle before anything is flown (compare's cases, a sweep file's move)."""
     from offboard.control.feasibility import FeasibilityLimits, check_reference
 
-    limits = FeasibilityLimits.from_config(registry.smc_params(vehicle))
-    return {
-        case.label: check_reference(case.scenario.reference, case.scenario.duration, vehicle, limits)
-        for case in the_cases
-    }
+    return check_reference(reference, duration, vehicle, FeasibilityLimits.from_config(registry.smc_params(vehicle)))
+
+
+def reference_feasibility(the_cases: list[Case], vehicle: Any) -> dict[str, Any]:
+    """:func:`smc_feasibility` of each case's reference: ``{case label: FeasibilityResult}``. A fixed move may ask
+    more than another vehicle can give (3 m in 2.5 s is a 0.74 rad swing and a slack cable on ArduPilot SITL's quad
+    with its 1 m cable): every row then fails for the move's sake, which the table alone would not say."""
+    return {case.label: smc_feasibility(case.scenario.reference, case.scenario.duration, vehicle) for case in the_cases}
 
 
 def _none_if_nan(v: float) -> float | None:

@@ -466,13 +466,11 @@ def reference_feasibility(config: SweepConfig) -> Any:
     reference asks of the vehicle before any draw moves it (the draws leave the reference alone). A move past the
     limits (3 m in 2 s asks for a 1.2 rad swing) makes every controller's runs fail for the move's sake."""
     from estimators.model.vehicle import load_vehicle
-    from offboard.control.controllers import registry
-    from offboard.control.feasibility import FeasibilityLimits, check_reference
+    from offboard.harness.compare import smc_feasibility
 
     nominal = load_vehicle(config.vehicle_file)
     sc = scenario(config, draw(config, 0, nominal))
-    limits = FeasibilityLimits.from_config(registry.smc_params(nominal))
-    return check_reference(sc.reference, sc.duration, nominal, limits)
+    return smc_feasibility(sc.reference, sc.duration, nominal)
 
 
 def single_run_speed(config: SweepConfig) -> dict[str, float]:

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 from estimators.model.vehicle import Vehicle
 from sim_bridge.inner.airframe import default_rate_gains
+from sim_bridge.inner.px4_hover_thrust import HTE_DEFAULTS as HTE
 
 # MAV_MODE_FLAG bits
 CUSTOM = 1
@@ -241,12 +242,12 @@ def px4_params(v: Vehicle) -> dict[str, Param]:
         ),
         "MPC_THR_HOVER": Param(hover, REAL32, 0.1, 0.8, doc="hover thrust, normalized 0..1 of max thrust"),
         "MPC_USE_HTE": Param(1, INT32, 0, 1, doc="1: position control flies the hover thrust estimator's estimate"),
-        "HTE_HT_NOISE": Param(0.0036, REAL32, 0.0001, 1.0, doc="hover thrust process noise, normalized/s"),
-        "HTE_ACC_GATE": Param(3.0, REAL32, 1.0, 10.0, doc="acceleration innovation gate, SD"),
-        "HTE_HT_ERR_INIT": Param(0.1, REAL32, 0.0, 1.0, doc="initial hover thrust uncertainty, 1 sigma"),
-        "HTE_VXY_THR": Param(10.0, REAL32, 1.0, 20.0, doc="horizontal speed above which the noise grows, m/s"),
-        "HTE_VZ_THR": Param(2.0, REAL32, 1.0, 10.0, doc="vertical speed above which the noise grows, m/s"),
-        "HTE_THR_RANGE": Param(0.2, REAL32, 0.01, 0.4, doc="hover thrust estimate's range around MPC_THR_HOVER"),
+        "HTE_HT_NOISE": Param(HTE["HTE_HT_NOISE"], REAL32, 0.0001, 1.0, doc="hover thrust process noise, normalized/s"),
+        "HTE_ACC_GATE": Param(HTE["HTE_ACC_GATE"], REAL32, 1.0, 10.0, doc="acceleration innovation gate, SD"),
+        "HTE_HT_ERR_INIT": Param(HTE["HTE_HT_ERR_INIT"], REAL32, 0.0, 1.0, doc="initial hover thrust uncertainty"),
+        "HTE_VXY_THR": Param(HTE["HTE_VXY_THR"], REAL32, 1.0, 20.0, doc="horizontal speed above which noise grows"),
+        "HTE_VZ_THR": Param(HTE["HTE_VZ_THR"], REAL32, 1.0, 10.0, doc="vertical speed above which the noise grows"),
+        "HTE_THR_RANGE": Param(HTE["HTE_THR_RANGE"], REAL32, 0.01, 0.4, doc="estimate's range around MPC_THR_HOVER"),
         "MIS_TAKEOFF_ALT": Param(2.5, REAL32, 0.0, 80.0, doc="take-off altitude above home, m"),
         "MPC_TKO_SPEED": Param(1.5, REAL32, 1.0, 5.0, doc="take-off climb rate, m/s"),
         "MPC_LAND_SPEED": Param(0.7, REAL32, 0.6, 3.0, doc="landing descent rate, m/s"),
