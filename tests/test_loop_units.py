@@ -19,7 +19,7 @@ from offboard.control.scenarios import make_scenario
 from offboard.flight.command_mapping import CommandMapper, MappingConfig
 from offboard.flight.link.autopilot_model import AutopilotModel
 from offboard.flight.link.connection import MavConnection, VehicleInfo
-from offboard.flight.loop import FlightLoop, LoopConfig, LoopStats, _AbortError
+from offboard.flight.loop import FlightAbortError, FlightLoop, LoopConfig, LoopStats
 from sim_bridge.inner.airframe import AttitudeController, default_rate_gains
 
 
@@ -78,30 +78,30 @@ def _est(x: float = 0.0, z: float = 1.0, ax: float = 0.0, ay: float = 0.0) -> Co
 def test_staleness_watchdog_real_time_and_lockstep(loop: FlightLoop) -> None:
     loop.last_rx_local = {"Attitude": 10.0, "PositionVelocity": 10.0}
     loop._watchdogs(0.0, 10.09)  # 90 ms: fine
-    with pytest.raises(_AbortError) as e:
+    with pytest.raises(FlightAbortError) as e:
         loop._watchdogs(0.0, 10.11)
     assert e.value.kind == "telemetry_stale" and e.value.action == "hold"
     loop.cfg = LoopConfig(lockstep=True, stale_s=0.1)
     loop.last_att = Attitude(5.0, 0, 0, 0, 0, 0, 0)
     loop.last_pos = PositionVelocity(4.95, 0, 0, 1, 0, 0, 0)
     loop._watchdogs(5.04, 1e9)  # vehicle-time ages in lockstep: the wall clock does not matter
-    with pytest.raises(_AbortError):
+    with pytest.raises(FlightAbortError):
         loop._watchdogs(5.06, 0.0)  # the position is 0.11 s old
 
 
 def test_divergence_and_swing_watchdogs(loop: FlightLoop) -> None:
     loop.last_pos = PositionVelocity(1.0, 0.3, 0.0, 1.0, 0.0, 0.0, 0.0)
     loop._check_swing(_est(x=0.3 + 0.9))  # 0.9 m off: fine
-    with pytest.raises(_AbortError) as e:
+    with pytest.raises(FlightAbortError) as e:
         loop._check_swing(_est(x=0.3 + 1.1))
     assert e.value.kind == "estimator_divergence"
-    with pytest.raises(_AbortError) as e:
+    with pytest.raises(FlightAbortError) as e:
         loop._check_swing(_est(x=math.nan))
     assert e.value.kind == "estimator_divergence"
     # swing: the flat output moves with the load, so keep the vehicle position consistent
     ell = Vehicle().cable_length
     loop._check_swing(_est(x=0.3 + ell * 0.4, ay=0.4))
-    with pytest.raises(_AbortError) as e:
+    with pytest.raises(FlightAbortError) as e:
         loop._check_swing(_est(x=0.3 + ell * 0.4, ay=0.4, ax=0.35))
     assert e.value.kind == "swing_limit"
 
