@@ -52,6 +52,14 @@ def non_negative_int(text: str) -> int:
     return v
 
 
+def positive_int(text: str) -> int:
+    """argparse type: a whole number > 0."""
+    v = non_negative_int(text)
+    if v == 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return v
+
+
 def add_controller_arguments(p: argparse.ArgumentParser, flight: bool = False) -> None:
     """Controller options shared by ``sim``, ``fly``, ``demo`` and ``replay``; ``flight``: the defaults of ``fly``
     and ``demo`` (smooth switching, each loop's own boundary layer; resolved per law in

@@ -269,6 +269,9 @@ def test_url_forms() -> None:
         normalize_url("udpin:host")
     with pytest.raises(UserError):
         normalize_url("http://x")
+    for bad in (("/dev/ttyUSB0", -5), ("/dev/ttyUSB0", 0), ("udpin:127.0.0.1:14540", -5), ("serial:/dev/tty0:0", None)):
+        with pytest.raises(UserError, match="baud"):
+            normalize_url(*bad)
 
 
 def test_ardupilot_raw_imu_and_scaled_imu2_are_fallback_imu_sources() -> None:

@@ -27,7 +27,7 @@ from typing import Any
 
 from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle, load_vehicle
-from offboard.cli_args import feedforward_tuning
+from offboard.cli_args import feedforward_tuning, positive_int
 from offboard.control import smc, smc_attitude
 from offboard.control.controllers.registry import drag_in_law
 from offboard.flight.attitude_mapping import AttitudeLawMapper
@@ -67,7 +67,7 @@ def configure(p: argparse.ArgumentParser) -> None:
         metavar="URL",
         help="MAVLink connection: udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, serial:/dev/X:BAUD",
     )
-    p.add_argument("--baud", type=int, default=None, help="serial baud rate (default 57600, or from the URL)")
+    p.add_argument("--baud", type=positive_int, default=None, help="serial baud rate (default 57600, or from the URL)")
     add_signing_arguments(p)
     add_reference_arguments(p)
     add_flight_arguments(p)

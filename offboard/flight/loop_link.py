@@ -17,10 +17,7 @@ from typing import Any
 from estimators.model.measurements import Attitude, LoadAngle, PositionVelocity, ReportedAccuracy
 from offboard.flight.link.connection import MavConnection
 from offboard.flight.loop_records import LoopEvent
-from offboard.flight.supervisor import Verdict
-
-#: the autopilot's messages the supervisor reads (``offboard.flight.supervisor``)
-_SUPERVISED = frozenset(("HEARTBEAT", "STATUSTEXT", "COMMAND_ACK"))
+from offboard.flight.supervisor import SUPERVISED_MESSAGES, Verdict
 
 
 class FlightAbortError(Exception):
@@ -50,7 +47,7 @@ class LinkSupervision:
             if msg.get_srcSystem() != self.target[0]:
                 continue
             kind = msg.get_type()
-            if kind in _SUPERVISED:
+            if kind in SUPERVISED_MESSAGES:
                 if kind != "HEARTBEAT" or msg.get_srcComponent() == self.target[1]:
                     self._supervise(msg)
                 continue
@@ -91,8 +88,8 @@ class LinkSupervision:
                 self.n_meas += 1
 
     def _supervise(self, msg: Any) -> None:
-        """Hand a HEARTBEAT / STATUSTEXT / COMMAND_ACK of the autopilot to the supervisor; what it notes goes into
-        the loop's events too."""
+        """Hand a supervised message of the autopilot (``SUPERVISED_MESSAGES``) to the supervisor; what it notes
+        goes into the loop's events too."""
         sup = self.supervisor
         n = len(sup.notes)
         sup.observe(msg, self._now_vehicle())

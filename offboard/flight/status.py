@@ -134,7 +134,9 @@ class FlightStatus:
             elif ev.kind == "exit":
                 self._phase("hand-over", ev.reason)
             elif ev.kind == "exit_done":
-                self._phase("hand-over", f"autopilot in {ev.reason}")
+                # the reason names the mode already when the vehicle was left to it ("in POSCTL, armed (...)")
+                said = ev.reason if ev.reason.startswith("in ") else f"in {ev.reason}"
+                self._phase("hand-over", f"autopilot {said}")
             else:
                 self._phase(self.current or "pre-flight", f"{ev.kind}: {ev.reason}")
 

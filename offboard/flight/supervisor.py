@@ -7,8 +7,14 @@ vehicle reports while the loop is in control ends the flight, with its reason:
   requested mode was seen (a pilot's RC mode switch, a ground station's DO_SET_MODE / SET_MODE, an autopilot
   failsafe). A pilot taking over is a normal end, but never a "completed" flight: the loop stops streaming and
   leaves the vehicle in the mode it is in (it does not fight the pilot by requesting hold);
-- ``disarmed``: a HEARTBEAT without MAV_MODE_FLAG_SAFETY_ARMED (a forced disarm, a kill switch, a crash
-  detector);
+- ``disarmed``: the vehicle disarmed (a forced disarm, a kill switch, a crash detector), seen through whichever
+  tells first: a HEARTBEAT without MAV_MODE_FLAG_SAFETY_ARMED (1 Hz: up to a second late), the autopilot's own
+  STATUSTEXT ("Disarmed by ...", "Disarming motors"), the acknowledgement of another sender's accepted
+  MAV_CMD_COMPONENT_ARM_DISARM (the vehicle is armed in flight: an accepted arm/disarm command from someone else
+  is the disarm), SYS_STATUS's motor outputs no longer enabled (once they were seen enabled), or
+  EXTENDED_SYS_STATE's landed state ON_GROUND after IN_AIR (PX4's land detector reports a disarmed vehicle as
+  landed). The loop then stops at once and asks nothing of the vehicle: a hold request to a disarmed vehicle
+  lying on the ground would re-arm nothing and mean nothing;
 - ``mode_not_entered``: the requested mode was acknowledged but no HEARTBEAT has shown it: after ``confirm_s``
   (HEARTBEAT is a 1 Hz message on both autopilots, so the default is 3 s) once at least two heartbeats of the
   autopilot have arrived since the request without it, or after ``confirm_max_s`` (9 s) whatever arrived. A
@@ -25,17 +31,31 @@ COMMAND_ACK whose ``target_system`` / ``target_component`` is another sender: so
 vehicle). The newest of them is quoted in a mode-change or disarm reason.
 
 The supervisor is fed the autopilot's messages by the loop (:meth:`observe`, HEARTBEAT / STATUSTEXT /
-COMMAND_ACK only) and asked once per tick (:meth:`check`); it never sends anything. Times are local monotonic
-seconds (the caller's clock: vehicle time in lockstep).
+COMMAND_ACK / SYS_STATUS / EXTENDED_SYS_STATE only) and asked once per tick (:meth:`check`); it never sends
+anything. Times are local monotonic seconds (the caller's clock: vehicle time in lockstep).
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
 MAV_MODE_FLAG_SAFETY_ARMED = 128
+MAV_CMD_COMPONENT_ARM_DISARM = 400
+MAV_RESULT_ACCEPTED = 0
+#: SYS_STATUS onboard_control_sensors_*: motor outputs / control
+MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS = 0x8000
+MAV_LANDED_STATE_ON_GROUND = 1
+MAV_LANDED_STATE_IN_AIR = 2
+
+#: the autopilots' own words for a disarm (PX4 "Disarmed by external command" / "by landing" / "by kill switch",
+#: ArduPilot "Disarming motors"); refusals ("Disarming denied: not landed") do not match
+DISARM_TEXT = re.compile(r"^\s*(disarmed\b|disarming motors\b)", re.IGNORECASE)
+
+#: the messages the supervisor reads (:meth:`Supervisor.observe`)
+SUPERVISED_MESSAGES = frozenset(("HEARTBEAT", "STATUSTEXT", "COMMAND_ACK", "SYS_STATUS", "EXTENDED_SYS_STATE"))
 
 #: exit codes of ``slung fly`` / ``slung demo`` by how the flight ended (docs/usage-fly-demo.md)
 EXIT_COMPLETED = 0
@@ -146,12 +166,17 @@ class Supervisor:
     _mode: int | None = None
     _armed: bool | None = None
     _heartbeats: int = 0  # the autopilot's heartbeats since expect()
+    #: the first sign of a disarm other than the heartbeat (what said so), None while none came
+    _disarm_seen: str | None = None
+    _motors_enabled_seen: bool = False
+    _in_air_seen: bool = False
 
     # ------------------------------------------------------------------------------------------ control ---
     def expect(self, custom_mode: int, now: float) -> None:
         """From now on the vehicle must be armed and in ``custom_mode`` (HEARTBEAT encoding)."""
         self._expected, self._since, self._confirmed = custom_mode, now, False
         self._heartbeats = 0
+        self._disarm_seen = None
 
     def release(self) -> None:
         """The loop hands the vehicle back (hold / land requested): stop supervising."""
@@ -179,6 +204,8 @@ class Supervisor:
             text = msg.text.decode("ascii", "replace") if isinstance(msg.text, bytes) else str(msg.text)
             text = text.rstrip("\x00").strip()
             self.notes.append(Note(now, "statustext", f"STATUSTEXT severity {msg.severity}: {text}"))
+            if DISARM_TEXT.match(text):
+                self._saw_disarm(f'the autopilot said "{text}"')
         elif kind == "COMMAND_ACK":
             ts = getattr(msg, "target_system", 0) or 0
             tc = getattr(msg, "target_component", 0) or 0
@@ -186,6 +213,24 @@ class Supervisor:
                 self.foreign_acks += 1
                 text = f"command {msg.command} from system {ts} component {tc} acknowledged (result {msg.result})"
                 self.notes.append(Note(now, "foreign_command", text))
+                if msg.command == MAV_CMD_COMPONENT_ARM_DISARM and msg.result == MAV_RESULT_ACCEPTED:
+                    self._saw_disarm(f"an arm/disarm command from system {ts} component {tc} was accepted")
+        elif kind == "SYS_STATUS":
+            if msg.onboard_control_sensors_present & MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS:
+                if msg.onboard_control_sensors_enabled & MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS:
+                    self._motors_enabled_seen = True
+                elif self._motors_enabled_seen:
+                    self._saw_disarm("SYS_STATUS shows the motor outputs disabled")
+        elif kind == "EXTENDED_SYS_STATE":
+            if msg.landed_state == MAV_LANDED_STATE_IN_AIR:
+                self._in_air_seen = True
+            elif msg.landed_state == MAV_LANDED_STATE_ON_GROUND and self._in_air_seen:
+                self._saw_disarm("EXTENDED_SYS_STATE shows the vehicle on the ground")
+
+    def _saw_disarm(self, what: str) -> None:
+        """Keep the first sign of a disarm while supervising (before: the loop's own arming, not a fault)."""
+        if self._expected is not None and self._disarm_seen is None:
+            self._disarm_seen = what
 
     # ------------------------------------------------------------------------------------------ checks ---
     def check(self, now: float) -> Verdict | None:
@@ -195,9 +240,10 @@ class Supervisor:
             return None
         recent = "; ".join([n.text for n in self.notes if n.t >= self._since][-2:])
         why = f" (last reports: {recent})" if recent else ""
+        if self._disarm_seen is not None or (self._confirmed and self._armed is False):
+            what = self._disarm_seen or "the heartbeat shows it disarmed"
+            return Verdict("disarmed", f"the vehicle disarmed during offboard control: {what}{why}", "none")
         if self._confirmed:
-            if self._armed is False:
-                return Verdict("disarmed", "the vehicle disarmed during offboard control" + why, "none")
             if self._mode != exp:
                 name = mode_name(self.flavour, self._mode if self._mode is not None else -1)
                 return Verdict(
@@ -248,6 +294,7 @@ __all__ = [
     "EXIT_DISARMED",
     "EXIT_TAKEN_OVER",
     "EXIT_USER_ERROR",
+    "SUPERVISED_MESSAGES",
     "Note",
     "Supervisor",
     "Verdict",

@@ -77,10 +77,14 @@ def normalize_url(url: str, baud: int | None = None) -> tuple[str, int]:
         if u.startswith(scheme + "://"):
             u = scheme + ":" + u[len(scheme) + 3 :]
     b = 57600 if baud is None else int(baud)
+    if b <= 0:  # pyserial would take a negative rate and fail later, or open the port at an undefined one
+        raise UserError(f"bad baud rate {baud}: must be a positive whole number (e.g. 57600 or 921600)")
     if u.startswith("serial:"):
         rest = u[len("serial:") :]
         dev, _, maybe_baud = rest.rpartition(":")
         if dev and maybe_baud.isdigit():
+            if int(maybe_baud) <= 0:
+                raise UserError(f"bad baud rate in {url!r}: must be a positive whole number (e.g. 921600)")
             return dev, int(maybe_baud)
         return rest, b
     if u.startswith(("udpin:", "udpout:", "udp:", "tcp:", "tcpin:")):
