@@ -279,7 +279,8 @@ def write_flight_outputs(
     m["loop"] = {
         **result.stats.summary(cfg.rate_hz),
         "reference_start_s": t_ref0,
-        "stale_limit_s": cfg.stale_s,
+        "stale_limit_s": result.staleness.get("limit_s", cfg.stale_s),
+        "staleness": result.staleness,
         "swing_limit_rad": cfg.swing_limit_rad,
     }
     m["link"] = link

@@ -23,6 +23,7 @@ from offboard.flight.loop import (
     RATE_MAX_HZ,
     RATE_MIN_HZ,
 )
+from offboard.flight.staleness import STALE_CEILING_S, STALE_FLOOR_S
 
 
 def add_signing_arguments(p: argparse.ArgumentParser) -> None:
@@ -130,9 +131,25 @@ def add_flight_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None
     p.add_argument(
         "--stale-limit",
         type=positive_float,
-        default=0.1,
+        default=None,
         metavar="S",
-        help="telemetry staleness watchdog, s (default 0.1)",
+        help="a fixed telemetry staleness limit, s (default: derived from the link's gaps in the hold before "
+        "control, within --stale-floor..--stale-ceiling)",
+    )
+    p.add_argument(
+        "--stale-floor",
+        type=positive_float,
+        default=STALE_FLOOR_S,
+        metavar="S",
+        help=f"the derived staleness limit's floor, s (default {STALE_FLOOR_S:g})",
+    )
+    p.add_argument(
+        "--stale-ceiling",
+        type=positive_float,
+        default=STALE_CEILING_S,
+        metavar="S",
+        help=f"the derived staleness limit's ceiling, s (default {STALE_CEILING_S:g}; PX4's own offboard-loss "
+        "timeout is 1 s)",
     )
     p.add_argument(
         "--swing-limit",

@@ -5,7 +5,8 @@ Usage (the main options; ``slung fly --help`` and ``docs/usage-fly-demo.md`` lis
     slung fly --connect URL (--scenario NAME | --trajectory FILE) [--duration S] [--output attitude|actuator]
               [--mask attitude|attitude+rates|rates] [--rate HZ] [--vehicle FILE|NAME] [--law auto|attitude|torque]
               [--backend pymavlink|mavsdk] [--lockstep] [--no-takeoff] [--external-feedforward]
-              [--stale-limit S] [--swing-limit RAD] [--settle S] [--settle-swing RAD]
+              [--stale-floor S] [--stale-ceiling S] [--stale-limit S] [--swing-limit RAD]
+              [--settle S] [--settle-swing RAD]
               [--end hold|land] [--on-signal hold|land] [--rt-priority N] [--force] --out DIR
 
 Writes into DIR: ``flight.tlog`` (every packet in and out, QGC format, flushed as written),
@@ -148,7 +149,8 @@ def build_loop_config(
     cfg = LoopConfig(
         rate_hz=args.rate,
         lockstep=lockstep,
-        stale_s=args.stale_limit,
+        stale_s=args.stale_limit if args.stale_limit is not None else args.stale_floor,
+        stale_ceiling_s=args.stale_limit if args.stale_limit is not None else args.stale_ceiling,
         swing_limit_rad=args.swing_limit,
         settle_s=getattr(args, "settle", 5.0),
         settle_swing_rad=getattr(args, "settle_swing", 0.05),

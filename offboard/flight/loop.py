@@ -21,12 +21,14 @@ Each tick
     back to the estimator (``push_command``) as the motors deliver it (:class:`ActuatorLag`).
 
 Watchdogs (each ends offboard control by switching the vehicle to its hold mode, logged with the reason)
-    - ``telemetry_stale``: no ATTITUDE or no position for ``stale_s`` (default 0.1 s; wall time in real time,
-      vehicle time in lockstep);
+    - ``telemetry_stale``: no ATTITUDE or no position for longer than the staleness limit (wall time in real
+      time, vehicle time in lockstep): derived from the link's gaps measured in the hold before control, within
+      ``stale_s``..``stale_ceiling_s`` (default 0.3..1 s; ``offboard.flight.staleness``); a shorter gap is flown
+      on the filter's prediction, and reported (``telemetry_gap``) when longer than any the hold showed;
     - ``estimator_divergence``: a non-finite estimate, or the estimated vehicle position more than
       ``divergence_m`` (default 1 m) from the autopilot's latest position;
     - ``swing_limit``: estimated swing ``hypot(alpha_x, alpha_y)`` above ``swing_limit_rad`` (default 0.8 rad);
-    - ``loop_overrun``: one estimator update took longer than ``stale_s`` (an overloaded computer, or the filter
+    - ``loop_overrun``: one estimator update took longer than the staleness limit (an overloaded computer, or the filter
       catching up after a stall): the loop can no longer keep its deadlines. Real time only: in lockstep the
       vehicle waits for each setpoint, so no deadline exists and a slow machine must not end the flight;
     - supervision (``offboard/flight/supervisor.py``): an unrequested mode change or disarm (the vehicle is left to its
@@ -92,6 +94,7 @@ from offboard.flight.loop_records import (
     TruthProbe,
 )
 from offboard.flight.loop_tick import TickLoop, estimate_ahead, prefuse_lead
+from offboard.flight.staleness import Staleness
 from offboard.flight.supervisor import Supervisor
 
 log = logging.getLogger("offboard.flight.loop")
@@ -157,6 +160,8 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
             conn.vehicle.flavour, own, config.tracking_limit_m, own_systems=getattr(conn, "own_systems", ())
         )
         self.latency = LinkLatency(config.lockstep, config.latency_limit_s)
+        #: the staleness limit from the link's gaps in the hold (``offboard.flight.staleness``)
+        self.staleness = Staleness(config.stale_s, config.stale_ceiling_s)
         #: the filter's fusion horizon (s); grows at the start of control when the link is slow (_size_for_link)
         self.filter_delay_s = config.base_filter_delay_s
         #: the largest horizon the filter can predict over (s): 0 until _size_for_link
@@ -256,6 +261,7 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
             oz = self.ground_z or 0.0
             origin = (self.last_pos.x - ref0.fx[0], self.last_pos.y - ref0.fy[0])
             self.goal = (self.last_pos.x, self.last_pos.y, ref0.z[0] + oz, ref0.psi[0])
+            self.staleness.measure()  # the link's gaps from here to the start of control set the staleness limit
             self._prime(self.cfg.prime_s if self.mgr.flavour == "px4" else 0.0)
             if not self.mgr.set_mode("offboard", idle=self.stream_hover):
                 from estimators.errors import UserError
@@ -271,6 +277,7 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
             self._approach()
             self._reread_hover_throttle()
             self.goal = None
+            self.event("phase", self.staleness.derive())
             self._size_for_link()
             self._schedule_gains()
             self.initialize_estimator()
@@ -323,6 +330,7 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
             filter_delay_s=self.filter_delay_s,
             gain_scale=self.gain_scale,
             reference_duration_s=self.duration,
+            staleness=self.staleness.summary(),
         )
 
     _prev_sent: float | None = None

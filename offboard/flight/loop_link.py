@@ -17,6 +17,7 @@ from typing import Any
 from estimators.model.measurements import Attitude, LoadAngle, PositionVelocity, ReportedAccuracy
 from offboard.flight.link.connection import MavConnection
 from offboard.flight.loop_records import LoopEvent
+from offboard.flight.staleness import WATCHED
 from offboard.flight.supervisor import SUPERVISED_MESSAGES, Verdict
 
 
@@ -68,7 +69,16 @@ class LinkSupervision:
                 continue
             if self._inject and isinstance(m, Attitude) and self._injected("measurement", m.t - self._t0_meas):
                 m = m._replace(phi=math.nan)
-            self.last_rx_local[type(m).__name__] = r.t_local
+            name = type(m).__name__
+            self.last_rx_local[name] = r.t_local
+            if name in WATCHED:
+                gap = self.staleness.on_sample(name, m.t if self.cfg.lockstep else r.t_local)
+                if gap is not None:
+                    self.event(
+                        "telemetry_gap",
+                        f"no {name} telemetry for {gap * 1e3:.0f} ms: bridged on the filter's prediction "
+                        f"(staleness limit {self.staleness.limit_s * 1e3:.0f} ms)",
+                    )
             if not isinstance(m, ReportedAccuracy):  # (its stamp is not always a sample time: GPS_RAW_INT's)
                 self.conn.clock.observe(m.t, r.t_local)
             if isinstance(m, Attitude):
@@ -182,9 +192,10 @@ class LinkSupervision:
             }
         else:
             ages = {k: now - self.last_rx_local.get(k, -math.inf) for k in ("Attitude", "PositionVelocity")}
+        limit = self.staleness.limit_s
         for k, age in ages.items():
-            if age > cfg.stale_s:
-                raise FlightAbortError("telemetry_stale", f"no {k} telemetry for {age:.3f} s (limit {cfg.stale_s:g} s)")
+            if age > limit:
+                raise FlightAbortError("telemetry_stale", f"no {k} telemetry for {age:.3f} s (limit {limit:.3g} s)")
         self._supervision_verdict()
         self._measure_link(t_v)
 

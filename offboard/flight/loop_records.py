@@ -13,6 +13,7 @@ import numpy as np
 
 from offboard.control.options import EndAction, values
 from offboard.flight.latency import DEFAULT_LIMIT_S, LIMIT_RANGE_S
+from offboard.flight.staleness import STALE_CEILING_S, STALE_FLOOR_S
 from offboard.logs.estimate_columns import EST_NAMES, INNOVATION_COLUMNS, SIGMA_COLUMNS
 
 RATE_MIN_HZ = 20.0
@@ -94,7 +95,10 @@ class LoopConfig:
     rate_hz: float = DEFAULT_RATE_HZ
     lockstep: bool = False
     lockstep_wait_s: float = 0.02
-    stale_s: float = 0.1
+    #: the staleness limit's floor and ceiling, s: the limit itself is derived from the link's gaps measured in
+    #: the hold before control (``offboard.flight.staleness``); equal, they fix it
+    stale_s: float = STALE_FLOOR_S
+    stale_ceiling_s: float = STALE_CEILING_S
     divergence_m: float = 1.0
     swing_limit_rad: float = 0.8
     #: after the reference's end, the longest the loop keeps flying it (a reference that ends at rest holds its end
@@ -129,6 +133,10 @@ class LoopConfig:
             raise ValueError(f"rate must be within {RATE_MIN_HZ:g}..{RATE_MAX_HZ:g} Hz, got {self.rate_hz:g}")
         if not (0.01 <= self.stale_s <= 5.0):
             raise ValueError(f"staleness limit must be within 0.01..5 s, got {self.stale_s:g}")
+        if not (self.stale_s <= self.stale_ceiling_s <= 5.0):
+            raise ValueError(
+                f"staleness ceiling must be within the floor ({self.stale_s:g} s)..5 s, got {self.stale_ceiling_s:g}"
+            )
         if not (0.05 <= self.swing_limit_rad <= 1.2):  # 1.2 rad: 69 degrees, beyond it the load is lost anyway
             raise ValueError(f"swing limit must be within 0.05..1.2 rad, got {self.swing_limit_rad:g}")
         if not (0.0 <= self.settle_s <= 600.0):
@@ -239,3 +247,5 @@ class FlightResult:
     #: the reference's duration (s): rows with a later ``t_ref`` were flown after its end while the load settled
     #: (``LoopConfig.settle_s``)
     reference_duration_s: float = math.inf
+    #: the staleness limit and the link's gaps it was derived from (``offboard.flight.staleness.Staleness.summary``)
+    staleness: dict[str, Any] = field(default_factory=dict)

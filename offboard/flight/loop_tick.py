@@ -147,8 +147,9 @@ class TickLoop:
             out = tick(t_v, t_ref)
             te = out.estimate_s
             stats.estimator.append(te)
-            if te > cfg.stale_s and not lockstep:  # in lockstep the vehicle waits for the setpoint: no deadline
-                raise FlightAbortError("loop_overrun", f"one filter update took {te:.3f} s (limit {cfg.stale_s:g} s)")
+            stale_s = self.staleness.limit_s
+            if te > stale_s and not lockstep:  # in lockstep the vehicle waits for the setpoint: no deadline
+                raise FlightAbortError("loop_overrun", f"one filter update took {te:.3f} s (limit {stale_s:.3g} s)")
             est, ref, rfx, rfy, rz, cmd, sp = out.est, out.ref, out.rfx, out.rfy, out.rz, out.cmd, out.setpoint
             if self._inject and self._injected("setpoint", t_ref):
                 sp = sp._replace(thrust=math.nan)
