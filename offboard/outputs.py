@@ -4,6 +4,7 @@ Ctrl-C never leaves a half-written metrics.json, time series or figure behind.""
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import tempfile
@@ -12,6 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from estimators.errors import UserError
+
+log = logging.getLogger(__name__)
 
 
 def prepare_output_dir(path: str | Path) -> Path:
@@ -84,3 +87,28 @@ def _json_safe(obj: Any) -> Any:
 def write_json_atomic(path: str | Path, data: dict[str, Any]) -> Path:
     """Write ``data`` as indented, strict JSON (non-finite numbers become null), atomically."""
     return write_text_atomic(path, json.dumps(_json_safe(data), indent=2, sort_keys=False, allow_nan=False) + "\n")
+
+
+class OutputFailures:
+    """The outputs of a run that could not be written (a full disk, a file-size limit, an I/O error): each is
+    warned about on one line as it stops, the run goes on to write the others, and the caller reports them apart
+    from the run's own result (the exit code of a flight is the flight's)."""
+
+    def __init__(self) -> None:
+        #: one line per failed output: "<name>: <reason>"
+        self.failed: list[str] = []
+
+    def attempt(self, name: str, write: Callable[[], Any]) -> bool:
+        """Run ``write()``; False (warned and recorded) if it raised an OSError."""
+        try:
+            write()
+        except OSError as exc:  # the file it names is the temporary one beside the target: name the target
+            self.note(name, exc.strerror or str(exc))
+            return False
+        return True
+
+    def note(self, name: str, reason: str) -> None:
+        """Record (and warn about) an output that stopped for ``reason``."""
+        why = f"{name}: {reason}"
+        self.failed.append(why)
+        log.warning("output stopped: %s", why)

@@ -6,6 +6,7 @@ that ``metrics.json``, ``timeseries.csv``, the figures and ``report.html`` are t
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import io
 import math
@@ -26,7 +27,7 @@ from offboard.flight.loop import (
 from offboard.flight.supervisor import exit_code
 from offboard.logs.estimate_columns import SIGMA_COLUMNS
 from offboard.logs.runlog import COL, LOG_COLUMNS, Scenario, SimConfig, SimLog
-from offboard.outputs import write_json_atomic, write_text_atomic
+from offboard.outputs import OutputFailures, write_json_atomic, write_text_atomic
 
 
 def settle_summary(rows: np.ndarray, result: FlightResult, vehicle: Vehicle) -> dict[str, Any]:
@@ -180,14 +181,15 @@ def write_flight_outputs(
     feasibility: dict[str, Any] | None = None,
     on_log: Any = None,
 ) -> dict[str, Any]:
-    """timeseries_live.csv, events.json, metrics.json, timeseries.csv and figures. ``estimator_config``: the
-    ``load_sensor`` and ``delay_s`` the filter was built with (recorded in ``config`` for ``slung replay``)."""
+    """events.json, metrics.json, timeseries.csv and figures, timeseries_live.csv: the small files first, so that a
+    full disk leaves the flight's result and events behind. An output that cannot be written is warned about as it
+    stops and listed in ``metrics.json``'s ``outputs.failed`` (rewritten once at the end if anything failed, if it
+    can be), never raised: the flight's result is the flight's. ``estimator_config``: the ``load_sensor`` and
+    ``delay_s`` the filter was built with (recorded in ``config`` for ``slung replay``)."""
     from offboard.report import report
 
     rows = np.asarray(result.rows, dtype=float).reshape(-1, len(LIVE_COLUMNS))
-    buf = io.StringIO()
-    np.savetxt(buf, rows, delimiter=",", header=",".join(LIVE_COLUMNS), comments="", fmt="%.17g")
-    write_text_atomic(out_dir / "timeseries_live.csv", buf.getvalue())
+    outputs = OutputFailures()
     events = {
         "loop": [e.__dict__ for e in result.events],
         "mapping": [e.__dict__ for e in result.mapper_events[:1000]],
@@ -195,7 +197,7 @@ def write_flight_outputs(
         "management": [e.__dict__ for e in result.management_events],
         "warnings": list(result.warnings),
     }
-    write_json_atomic(out_dir / "events.json", events)
+    outputs.attempt("events.json", lambda: write_json_atomic(out_dir / "events.json", events))
     # the metrics are the reference's: the ticks flown after its end while the load settled are reported apart
     t_ref = rows[:, LIVE_COL["t_ref"]]
     in_ref = t_ref <= result.reference_duration_s + 1e-9
@@ -297,17 +299,32 @@ def write_flight_outputs(
         "latency": result.latency,
         "exit_code": exit_code(result.ended_by),
     }
-    if len(rows) >= 2:
-        report.write_report(
-            log,
-            m,
-            out_dir,
-            figures=figures,
-            command=getattr(args, "command", None) or "fly",
-            live=rows[in_ref],  # the same ticks as the log (the settle after the end is not drawn)
-            live_col=LIVE_COL,
-            events=events,
+    tlog_failure = link.get("tlog_failure")
+    m["outputs"] = {"failed": [tlog_failure] if tlog_failure else []}
+    outputs.attempt("metrics.json", lambda: write_json_atomic(out_dir / "metrics.json", m))
+    if len(rows) >= 2:  # then timeseries.csv and the figures (the report writes metrics.json again, the same)
+        outputs.attempt(
+            "timeseries.csv or the report's figures",
+            lambda: report.write_report(
+                log,
+                m,
+                out_dir,
+                figures=figures,
+                command=getattr(args, "command", None) or "fly",
+                live=rows[in_ref],  # the same ticks as the log (the settle after the end is not drawn)
+                live_col=LIVE_COL,
+                events=events,
+            ),
         )
-    else:
-        write_json_atomic(out_dir / "metrics.json", m)
+
+    def write_live() -> None:
+        buf = io.StringIO()
+        np.savetxt(buf, rows, delimiter=",", header=",".join(LIVE_COLUMNS), comments="", fmt="%.17g")
+        write_text_atomic(out_dir / "timeseries_live.csv", buf.getvalue())
+
+    outputs.attempt("timeseries_live.csv", write_live)
+    m["outputs"]["failed"] += outputs.failed
+    if outputs.failed:  # say so in metrics.json too, if it can still be written (a small file: it often can)
+        with contextlib.suppress(OSError):
+            write_json_atomic(out_dir / "metrics.json", m)
     return m

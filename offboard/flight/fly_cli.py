@@ -453,5 +453,16 @@ def run(args: argparse.Namespace) -> int:
     0 flown to the end; 1 a watchdog, a signal or an internal fault ended it (vehicle handed to hold / land);
     3 the vehicle left offboard control without being asked (pilot, ground station, failsafe); 4 it disarmed."""
     check_rate(args.rate)
-    m, _ = fly(args, lockstep=args.lockstep, takeoff=not args.no_takeoff, backend=args.backend)
-    return exit_code(m.get("flight", {}).get("ended_by", "internal_error"))
+    m, out_dir = fly(args, lockstep=args.lockstep, takeoff=not args.no_takeoff, backend=args.backend)
+    code = exit_code(m.get("flight", {}).get("ended_by", "internal_error"))
+    print(summary_line(m, out_dir, code), file=sys.stderr, flush=True)
+    return code
+
+
+def summary_line(m: dict[str, Any], out_dir: Path, code: int) -> str:
+    """The one line ``slung fly`` always ends with on stderr: how the flight ended, its exit code, and whether
+    every output was written (an output that failed is reported here, apart from the flight's result)."""
+    fl = m.get("flight", {})
+    failed = m.get("outputs", {}).get("failed", [])
+    outputs = f"outputs incomplete: {'; '.join(failed)}" if failed else f"outputs in {out_dir}"
+    return f"slung fly: {fl.get('ended_by', 'unknown')} (exit {code}), vehicle {fl.get('end_state', '?')}; {outputs}"

@@ -74,10 +74,13 @@ class LinkSupervision:
             if name in WATCHED:
                 gap = self.staleness.on_sample(name, m.t if self.cfg.lockstep else r.t_local)
                 if gap is not None:
+                    limit = self.staleness.limit_s
+                    # longer than the limit and still flying: the loop itself stalled and read the gap late
+                    late = " (the loop itself was stalled past the limit)" if gap > limit else ""
                     self.event(
                         "telemetry_gap",
                         f"no {name} telemetry for {gap * 1e3:.0f} ms: bridged on the filter's prediction "
-                        f"(staleness limit {self.staleness.limit_s * 1e3:.0f} ms)",
+                        f"(staleness limit {limit * 1e3:.0f} ms){late}",
                     )
             if not isinstance(m, ReportedAccuracy):  # (its stamp is not always a sample time: GPS_RAW_INT's)
                 self.conn.clock.observe(m.t, r.t_local)

@@ -88,6 +88,7 @@ class LoopOutputs:
         wait for the disarm. ``action`` ``none``: the vehicle has left the loop's control already (a pilot or a
         failsafe took over, or it disarmed): nothing is requested and nothing streamed."""
         self.supervisor.release()
+        self.staleness.stop()
         self._finishing = True
         v = self.conn.vehicle
         if action == "none":

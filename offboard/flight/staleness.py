@@ -103,6 +103,10 @@ class Staleness:
             f"(floor {self.floor_s:g} s, ceiling {self.ceiling_s:g} s)"
         )
 
+    def stop(self) -> None:
+        """Control ended (the hand-over): gaps from here on are not the watchdog's, and not reported."""
+        self._measuring = self._controlling = False
+
     def summary(self) -> dict[str, Any]:
         """The ``loop.staleness`` block of metrics.json (s)."""
 

@@ -4,11 +4,14 @@ packet), written as packets go in and out and flushed as written (``offboard.fli
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import struct
 import time
 
 from estimators.errors import UserError
+
+log = logging.getLogger(__name__)
 
 
 class TlogWriter:
@@ -42,6 +45,7 @@ class TlogWriter:
             )
             with contextlib.suppress(OSError):
                 self._fh.close()
+            log.warning("output stopped: %s (the flight goes on)", self.failure)  # once: later records are ignored
             return
         self.records += 1
 
