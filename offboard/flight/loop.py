@@ -74,6 +74,7 @@ from offboard.control.controllers.sliding_mode import law_for
 from offboard.control.tick import ActuatorLag
 from offboard.flight.attitude_mapping import inner_loop_of
 from offboard.flight.command_mapping import CommandMapper
+from offboard.flight.dropped_data import DroppedData
 from offboard.flight.latency import LinkLatency
 from offboard.flight.link.connection import MavConnection
 from offboard.flight.link.management import Manager, custom_mode
@@ -162,6 +163,9 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
         self.latency = LinkLatency(config.lockstep, config.latency_limit_s)
         #: the staleness limit from the link's gaps in the hold (``offboard.flight.staleness``)
         self.staleness = Staleness(config.stale_s, config.stale_ceiling_s)
+        #: refused data (non-finite telemetry, foreign senders, bad signatures) told as events (``dropped_data``)
+        self.dropped = DroppedData()
+        self._systems_told: set[int] = set()
         #: the filter's fusion horizon (s); grows at the start of control when the link is slow (_size_for_link)
         self.filter_delay_s = config.base_filter_delay_s
         #: the largest horizon the filter can predict over (s): 0 until _size_for_link

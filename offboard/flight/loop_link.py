@@ -140,6 +140,31 @@ class LinkSupervision:
         if why is not None:
             raise FlightAbortError("latency", why)
 
+    def _dropped_counts(self) -> dict[str, int]:
+        """The link's refusal counters (cumulative), by ``offboard.flight.dropped_data`` kind."""
+        st = self.conn.stats
+        sg = getattr(getattr(self.conn, "mav", None), "signing", None)
+        signed = sg is not None and getattr(self.conn, "signing", None) is not None
+        return {
+            "nonfinite_telemetry": self.decoder.counts.get("refused_nonfinite", 0),
+            "foreign_sender": getattr(st, "foreign_datagrams", 0),
+            "refused_signature": sg.badsig_count + sg.unsigned_count if signed else 0,
+        }
+
+    def _report_dropped(self, final: bool = False) -> None:
+        """New refusals as events (each a warning line), rate-limited per kind; ``final``: all that is left."""
+        d = self.dropped
+        for kind, text in (d.flush if final else d.check)(time.monotonic(), self._dropped_counts()):
+            self.event(kind, text)
+        systems = getattr(self.conn.stats, "foreign_systems", {})
+        if len(systems) > len(self._systems_told):  # a new system on the link: once per system
+            for sys_id in sorted(set(systems) - self._systems_told):
+                self._systems_told.add(sys_id)
+                self.event(
+                    "foreign_system",
+                    f"MAVLink system {sys_id} is on the link too: its messages are not the autopilot's",
+                )
+
     def _supervision_verdict(self) -> None:
         """Raise the supervisor's verdict, if it has one (once per tick and per approach step)."""
         v: Verdict | None = self.supervisor.check(self._now_vehicle())

@@ -211,6 +211,7 @@ class FlightPhases:
         """Send one keep-alive setpoint (the position goal before control starts, else a hover attitude) and pace
         to the loop rate (management's idle callback while streaming)."""
         self._abort_on_signal()
+        self._report_dropped()
         if self.supervisor.active:
             self._supervision_verdict()
             self._measure_link(self._now_vehicle() if self.cfg.lockstep else self._vehicle_now())

@@ -203,6 +203,7 @@ class TickLoop:
             )
             if prefuse is not None:  # the setpoint has left: what the next estimate would fuse first, now
                 prefuse(t_v + prefuse_ahead)
+            self._report_dropped()  # off the path to the setpoint: a few counter reads
             self._check_swing(est)
             last_est = est
             v = self.supervisor.check_tracking(est.fx[0] - rfx[0], est.fy[0] - rfy[0], est.z - rz[0])

@@ -169,6 +169,8 @@ class LinkStats:
     foreign: int = 0
     foreign_acks: int = 0
     foreign_datagrams: int = 0  # UDP datagrams from another address than the autopilot's, dropped unparsed
+    #: other systems seen on the autopilot's link (any message, heartbeats included): system id -> messages
+    foreign_systems: dict[int, int] = field(default_factory=dict)
     deferred_polls: int = 0  # polls that left messages for the next one (READ_BUDGET reached)
     by_type: dict[str, int] = field(default_factory=dict)
 
@@ -435,6 +437,8 @@ class MavConnection:
     def _bookkeep(self, msg: Any, kind: str, now: float) -> None:
         v = self.vehicle
         src = msg.get_srcSystem()
+        if v is not None and src != v.system:
+            self.stats.foreign_systems[src] = self.stats.foreign_systems.get(src, 0) + 1
         if kind == "HEARTBEAT":
             comp = msg.get_srcComponent()
             if v is not None and src == v.system and comp == v.component:
