@@ -55,15 +55,18 @@ class ForeignStation:
         self.conn.close()
 
 
-def fly_with_intrusion(tmp_path: Path, intrude: Any) -> tuple[dict, Path, dict]:
+def fly_with_intrusion(tmp_path: Path, intrude: Any, on_tick: Any = None) -> tuple[dict, Path, dict]:
     """Fly 6 s of hover in lockstep; ``intrude(emulator, station)`` runs once, 1.5 s of vehicle time into the
-    controlled flight (from the loop's tick, before that tick's setpoint: deterministic in lockstep)."""
+    controlled flight (from the loop's tick, before that tick's setpoint: deterministic in lockstep);
+    ``on_tick(emulator, station, t)``, if given, at every tick (vehicle time ``t``, s)."""
     port = free_udp_port()
     emu = EmulatorThread("px4", port, lockstep=True, period=0.004).start()
     station = ForeignStation(emu.link.endpoints[0].local_port)
     state: dict[str, float | bool] = {"t0": float("inf"), "done": False}
 
     def probe(t: float) -> Any:
+        if on_tick is not None:
+            on_tick(emu, station, t)
         if not state["done"] and t >= float(state["t0"]) + 1.5:
             state["done"] = True
             intrude(emu, station)
@@ -131,6 +134,50 @@ def test_an_unrequested_mode_change_or_disarm_ends_the_flight(
     if case != "rc_switch":  # the foreign station's acknowledgement was seen and never taken for ours
         assert fl["supervision"]["foreign_command_acks"] >= 1
         assert any(e["kind"] == "foreign_command" for e in ev)
+
+
+@pytest.mark.slow
+def test_a_burst_of_foreign_attitude_setpoints_is_an_event_within_half_a_second(tmp_path: Path) -> None:
+    """Issue 39: system 42 sends 30 deg roll SET_ATTITUDE_TARGET at 100 Hz (wall) for 1 s of vehicle time; the
+    emulator obeys them as PX4 would, in turns with the loop's. The autopilot's ATTITUDE_TARGET shows it: an event
+    within 0.5 s of vehicle time, before anything ends the flight."""
+    import math
+    import threading
+    import time
+
+    state: dict[str, Any] = {"t": 0.0, "start": None, "sent": 0}
+    roll = math.radians(30.0)
+    q = [math.cos(roll / 2), math.sin(roll / 2), 0.0, 0.0]  # NED -> FRD, roll only
+
+    def intrude(emu: EmulatorThread, station: ForeignStation) -> None:
+        state["start"] = state["t"]
+
+        def burst() -> None:
+            while state["t"] < state["start"] + 1.0:
+                station.conn.mav.set_attitude_target_send(0, 1, 1, 0b00000111, q, 0.0, 0.0, 0.0, 0.5)
+                state["sent"] += 1
+                time.sleep(0.01)
+
+        threading.Thread(target=burst, daemon=True).start()
+
+    def clock(emu: EmulatorThread, station: ForeignStation, t: float) -> None:
+        state["t"] = t
+
+    m, folder, _ = fly_with_intrusion(tmp_path, intrude, on_tick=clock)
+    assert state["sent"] >= 10
+    ev = loop_events(folder)
+    told = [e for e in ev if e["kind"] == "foreign_setpoint"]
+    assert told, m["flight"]["supervision"]["attitude_target"]
+    start = state["start"]
+    assert all(e["t_vehicle"] >= start for e in told)  # nothing before the burst: the loop's own setpoints match
+    assert told[0]["t_vehicle"] - start <= 0.5, (told[0], start)
+    assert "another sender" in told[0]["reason"] and "signing" in told[0]["reason"]
+    # in lockstep every foreign setpoint is a step of its own, with the loop's turn only on the next: the burst
+    # pushes the vehicle away far enough that the tracking watchdog may end the flight; the event comes first
+    ended = [e for e in ev if e["kind"] == m["flight"]["ended_by"]]
+    assert not ended or ended[0]["t_vehicle"] >= told[0]["t_vehicle"]
+    echo = m["flight"]["supervision"]["attitude_target"]
+    assert echo["compared"] > 100 and echo["worst_deg"] > 20.0, echo
 
 
 def test_exit_codes_by_end() -> None:
@@ -240,3 +287,35 @@ def test_a_disarm_is_seen_through_whichever_message_tells_first() -> None:
     ):
         quiet.observe(m, 1.0)
         assert quiet.check(1.0) is None, m
+
+
+def test_the_setpoint_echo_tells_a_recurring_mismatch_once_and_ends_on_a_large_or_lasting_one() -> None:
+    import math
+
+    from offboard.flight.setpoint_echo import SetpointEcho
+
+    def q_roll(deg: float) -> list[float]:
+        r = math.radians(deg)
+        return [math.cos(r / 2), math.sin(r / 2), 0.0, 0.0]
+
+    e = SetpointEcho()
+    for i in range(100):  # the loop's setpoints at 250 Hz, rolling slowly; the target follows 40 ms late
+        e.sent(i * 0.004, q_roll(i * 0.05))
+    assert e.target(0.39, q_roll((0.39 - 0.04) / 0.004 * 0.05)) is None  # its own setpoint, late: no mismatch
+    assert e.target(0.40, q_roll(30.0)) is None and e.target(0.42, q_roll(30.0)) is None  # one or two: not yet
+    said = e.target(0.44, q_roll(30.0))
+    assert said is not None and said[0] == "event" and "signing" in said[1]
+    assert e.target(0.46, q_roll(30.0)) is None  # once per episode
+    big = SetpointEcho()
+    for i in range(100):
+        big.sent(i * 0.004, q_roll(0.0))
+    outs = [big.target(0.3 + 0.02 * k, q_roll(60.0)) for k in range(3)]
+    assert outs[-1] is not None and outs[-1][0] == "abort" and "60 deg" in outs[-1][1]
+    lasting = SetpointEcho()
+    t, said = 0.0, None
+    while t < 3.0 and (said is None or said[0] != "abort"):
+        lasting.sent(t, q_roll(0.0))
+        if round(t / 0.004) % 5 == 0 and t > 0.3:
+            said = lasting.target(t, q_roll(20.0)) or said
+        t += 0.004
+    assert said is not None and said[0] == "abort" and 2.0 <= t - 0.3 <= 2.1, (said, t)

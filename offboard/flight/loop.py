@@ -95,6 +95,7 @@ from offboard.flight.loop_records import (
     TruthProbe,
 )
 from offboard.flight.loop_tick import TickLoop, estimate_ahead, prefuse_lead
+from offboard.flight.setpoint_echo import SetpointEcho
 from offboard.flight.staleness import Staleness
 from offboard.flight.supervisor import Supervisor
 
@@ -166,6 +167,10 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
         #: refused data (non-finite telemetry, foreign senders, bad signatures) told as events (``dropped_data``)
         self.dropped = DroppedData()
         self._systems_told: set[int] = set()
+        #: the autopilot's ATTITUDE_TARGET against the attitude setpoints sent (``setpoint_echo``): foreign setpoints
+        self.echo = SetpointEcho()
+        self._echo_on = False
+        self._foreign_verdict: str | None = None
         #: the filter's fusion horizon (s); grows at the start of control when the link is slow (_size_for_link)
         self.filter_delay_s = config.base_filter_delay_s
         #: the largest horizon the filter can predict over (s): 0 until _size_for_link
@@ -329,7 +334,7 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
             self.last_load is not None,
             dict(self.decoder.counts),
             ground_z=self.ground_z or 0.0,
-            supervision=self.supervisor.summary(),
+            supervision={**self.supervisor.summary(), "attitude_target": self.echo.summary()},
             latency=self.latency.summary(),
             filter_delay_s=self.filter_delay_s,
             gain_scale=self.gain_scale,

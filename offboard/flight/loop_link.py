@@ -17,6 +17,7 @@ from typing import Any
 from estimators.model.measurements import Attitude, LoadAngle, PositionVelocity, ReportedAccuracy
 from offboard.flight.link.connection import MavConnection
 from offboard.flight.loop_records import LoopEvent
+from offboard.flight.setpoint_echo import ATTITUDE_IGNORE
 from offboard.flight.staleness import WATCHED
 from offboard.flight.supervisor import SUPERVISED_MESSAGES, Verdict
 
@@ -60,6 +61,9 @@ class LinkSupervision:
                 self.marker_t = msg.time_boot_ms * 1e-3
                 self.trigger_local = r.t_local
                 self._triggered = True
+                continue
+            if kind == "ATTITUDE_TARGET":
+                self._on_attitude_target(msg)
                 continue
             if kind == "GLOBAL_POSITION_INT":
                 self._on_global_position(msg, r.t_local)
@@ -139,6 +143,20 @@ class LinkSupervision:
         why = lat.check(now)
         if why is not None:
             raise FlightAbortError("latency", why)
+
+    def _on_attitude_target(self, msg: Any) -> None:
+        """The autopilot's ATTITUDE_TARGET during control: compared with the setpoints sent (``setpoint_echo``); a
+        large mismatch is left for the next tick's watchdogs to end the flight (not raised inside a read)."""
+        if not self._echo_on or msg.type_mask & ATTITUDE_IGNORE or not all(map(math.isfinite, msg.q)):
+            return
+        said = self.echo.target(msg.time_boot_ms * 1e-3, msg.q)
+        if said is None:
+            return
+        what, text = said
+        if what == "abort":
+            self._foreign_verdict = self._foreign_verdict or text
+        else:
+            self.event("foreign_setpoint", text)
 
     def _dropped_counts(self) -> dict[str, int]:
         """The link's refusal counters (cumulative), by ``offboard.flight.dropped_data`` kind."""
@@ -224,6 +242,8 @@ class LinkSupervision:
         for k, age in ages.items():
             if age > limit:
                 raise FlightAbortError("telemetry_stale", f"no {k} telemetry for {age:.3f} s (limit {limit:.3g} s)")
+        if self._foreign_verdict is not None:
+            raise FlightAbortError("foreign_setpoint", self._foreign_verdict)
         self._supervision_verdict()
         self._measure_link(t_v)
 

@@ -89,6 +89,7 @@ class LoopOutputs:
         failsafe took over, or it disarmed): nothing is requested and nothing streamed."""
         self.supervisor.release()
         self.staleness.stop()
+        self._echo_on = False
         self._report_dropped(final=True)
         self._finishing = True
         v = self.conn.vehicle

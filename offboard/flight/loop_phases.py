@@ -39,6 +39,8 @@ class FlightPhases:
             "LOCAL_POSITION_NED": min(rate, 100.0),
             "HIGHRES_IMU": rate,
             "DEBUG_VECT": min(rate, 250.0),
+            # the attitude the autopilot flies: compared with ours to tell another sender's setpoints (setpoint_echo)
+            "ATTITUDE_TARGET": min(rate, 50.0),
         }
         self.mgr.request_streams(streams, idle=self._idle_read)
         self.conn.request_timesync(time.monotonic())

@@ -18,6 +18,7 @@ from offboard.control.controllers.sliding_mode import law_for
 from offboard.control.tick import ActuatorLag, ControlTick
 from offboard.flight.command_mapping import setpoint_fields
 from offboard.flight.loop_link import FlightAbortError
+from offboard.flight.setpoint_echo import ATTITUDE_IGNORE
 
 #: lockstep: how much longer (wall s) a tick waits for the next step marker after a late one (``_next_step``)
 LATE_MARKER_WAIT_S = 0.25
@@ -57,6 +58,7 @@ class TickLoop:
         gc.freeze()
         gc_was_enabled = gc.isenabled()
         gc.disable()
+        self._echo_on = True  # from now on the setpoints are the law's: the autopilot's target must follow them
         try:
             self._fly_ticks(t0, t_v, last_marker, origin, wall0)
         finally:
@@ -159,6 +161,9 @@ class TickLoop:
             # the setpoint is on the wire: now its tlog record (a slow write must not delay the setpoint)
             self.conn.log_sent(buf, time.time())
             sp = self.last_sp  # what left (the hover setpoint if the encoder refused this one): what the log records
+            spf = setpoint_fields(sp)
+            if len(spf) == 9 and not int(spf[8]) & ATTITUDE_IGNORE:  # an attitude it flies: for the echo's comparison
+                self.echo.sent(t_obs, spf[:4])
             # ---- statistics and log ----------------------------------------------------------------------
             latency = math.nan
             if self.trigger_local is not None:
@@ -174,7 +179,6 @@ class TickLoop:
             self._prev_sent = sent
             stats.ticks += 1
             tr = (*truth[0], truth[1], *(truth[2] if len(truth) > 2 else nan4)) if truth is not None else nan23
-            spf = setpoint_fields(sp)
             self.rows.append(
                 (
                     t_v,

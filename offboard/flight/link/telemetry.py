@@ -68,6 +68,7 @@ IMU_RANK: dict[str, int] = {"HIGHRES_IMU": 0, "SCALED_IMU": 0, "RAW_IMU": 1, "SC
 MESSAGE_IDS: dict[str, int] = {
     "ATTITUDE": 30,
     "ATTITUDE_QUATERNION": 31,
+    "ATTITUDE_TARGET": 83,
     "LOCAL_POSITION_NED": 32,
     "HIGHRES_IMU": 105,
     "SCALED_IMU": 26,
