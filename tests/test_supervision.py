@@ -248,9 +248,10 @@ def test_supervisor_rules_without_a_link() -> None:
 
 def test_a_disarm_is_seen_through_whichever_message_tells_first() -> None:
     """Issue 39: the heartbeat tells a disarm up to a second late; the autopilot's STATUSTEXT, the acknowledgement
-    of another sender's arm/disarm command, SYS_STATUS's motor outputs and EXTENDED_SYS_STATE's landed state tell
-    it at once. Each alone ends supervision as ``disarmed`` with nothing requested of the vehicle; the words of a
-    refusal ("Disarming denied") and anything before supervision starts (the loop's own arming) do not."""
+    of another sender's arm/disarm command and SYS_STATUS's motor outputs tell it at once. Each alone ends
+    supervision as ``disarmed`` with nothing requested of the vehicle; the words of a refusal ("Disarming denied"),
+    anything before supervision starts (the loop's own arming) and a vehicle on the ground but armed (EXTENDED_SYS_STATE
+    ON_GROUND: an armed vehicle touching down reads so too) do not."""
     mav = mavutil.mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
     motors = 0x8000
     cases = {
@@ -261,7 +262,6 @@ def test_a_disarm_is_seen_through_whichever_message_tells_first() -> None:
             mav.sys_status_encode(motors | 1, motors | 1, motors | 1, 0, 0, -1, -1, 0, 0, 0, 0, 0, 0),
             mav.sys_status_encode(motors | 1, 1, motors | 1, 0, 0, -1, -1, 0, 0, 0, 0, 0, 0),
         ],
-        "landed": [mav.extended_sys_state_encode(0, 2), mav.extended_sys_state_encode(0, 1)],
     }
     for case, msgs in cases.items():
         s = Supervisor("px4", (255, 191))
@@ -283,7 +283,8 @@ def test_a_disarm_is_seen_through_whichever_message_tells_first() -> None:
         mav.command_ack_encode(MAV_CMD_COMPONENT_ARM_DISARM, 4, 0, 0, 42, 1),  # refused: still armed
         mav.command_ack_encode(MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 0, 255, 191),  # our own
         mav.sys_status_encode(1, 1, 1, 0, 0, -1, -1, 0, 0, 0, 0, 0, 0),  # an autopilot that never reports motors
-        mav.extended_sys_state_encode(0, 1),  # on the ground, never seen in the air
+        mav.extended_sys_state_encode(0, 2),
+        mav.extended_sys_state_encode(0, 1),  # on the ground, armed: not a disarm
     ):
         quiet.observe(m, 1.0)
         assert quiet.check(1.0) is None, m

@@ -11,10 +11,11 @@ vehicle reports while the loop is in control ends the flight, with its reason:
   tells first: a HEARTBEAT without MAV_MODE_FLAG_SAFETY_ARMED (1 Hz: up to a second late), the autopilot's own
   STATUSTEXT ("Disarmed by ...", "Disarming motors"), the acknowledgement of another sender's accepted
   MAV_CMD_COMPONENT_ARM_DISARM (the vehicle is armed in flight: an accepted arm/disarm command from someone else
-  is the disarm), SYS_STATUS's motor outputs no longer enabled (once they were seen enabled), or
-  EXTENDED_SYS_STATE's landed state ON_GROUND after IN_AIR (PX4's land detector reports a disarmed vehicle as
-  landed). The loop then stops at once and asks nothing of the vehicle: a hold request to a disarmed vehicle
-  lying on the ground would re-arm nothing and mean nothing;
+  is the disarm), or SYS_STATUS's motor outputs no longer enabled (once they were seen enabled). The loop then
+  stops at once and asks nothing of the vehicle: a hold request to a disarmed vehicle lying on the ground would
+  re-arm nothing and mean nothing. EXTENDED_SYS_STATE's landed state is not taken for a disarm: an armed vehicle
+  that touches the ground reads ON_GROUND too (a loaded-machine emulator flight did, 7 Dec 2026: taken for a
+  disarm, it was left armed in OFFBOARD with no setpoint stream);
 - ``mode_not_entered``: the requested mode was acknowledged but no HEARTBEAT has shown it: after ``confirm_s``
   (HEARTBEAT is a 1 Hz message on both autopilots, so the default is 3 s) once at least two heartbeats of the
   autopilot have arrived since the request without it, or after ``confirm_max_s`` (9 s) whatever arrived. A
@@ -31,7 +32,7 @@ COMMAND_ACK whose ``target_system`` / ``target_component`` is another sender: so
 vehicle). The newest of them is quoted in a mode-change or disarm reason.
 
 The supervisor is fed the autopilot's messages by the loop (:meth:`observe`, HEARTBEAT / STATUSTEXT /
-COMMAND_ACK / SYS_STATUS / EXTENDED_SYS_STATE only) and asked once per tick (:meth:`check`); it never sends
+COMMAND_ACK / SYS_STATUS only) and asked once per tick (:meth:`check`); it never sends
 anything. Times are local monotonic seconds (the caller's clock: vehicle time in lockstep).
 """
 
@@ -47,15 +48,13 @@ MAV_CMD_COMPONENT_ARM_DISARM = 400
 MAV_RESULT_ACCEPTED = 0
 #: SYS_STATUS onboard_control_sensors_*: motor outputs / control
 MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS = 0x8000
-MAV_LANDED_STATE_ON_GROUND = 1
-MAV_LANDED_STATE_IN_AIR = 2
 
 #: the autopilots' own words for a disarm (PX4 "Disarmed by external command" / "by landing" / "by kill switch",
 #: ArduPilot "Disarming motors"); refusals ("Disarming denied: not landed") do not match
 DISARM_TEXT = re.compile(r"^\s*(disarmed\b|disarming motors\b)", re.IGNORECASE)
 
 #: the messages the supervisor reads (:meth:`Supervisor.observe`)
-SUPERVISED_MESSAGES = frozenset(("HEARTBEAT", "STATUSTEXT", "COMMAND_ACK", "SYS_STATUS", "EXTENDED_SYS_STATE"))
+SUPERVISED_MESSAGES = frozenset(("HEARTBEAT", "STATUSTEXT", "COMMAND_ACK", "SYS_STATUS"))
 
 #: exit codes of ``slung fly`` / ``slung demo`` by how the flight ended (docs/usage-fly-demo.md)
 EXIT_COMPLETED = 0
@@ -169,7 +168,6 @@ class Supervisor:
     #: the first sign of a disarm other than the heartbeat (what said so), None while none came
     _disarm_seen: str | None = None
     _motors_enabled_seen: bool = False
-    _in_air_seen: bool = False
 
     # ------------------------------------------------------------------------------------------ control ---
     def expect(self, custom_mode: int, now: float) -> None:
@@ -215,17 +213,11 @@ class Supervisor:
                 self.notes.append(Note(now, "foreign_command", text))
                 if msg.command == MAV_CMD_COMPONENT_ARM_DISARM and msg.result == MAV_RESULT_ACCEPTED:
                     self._saw_disarm(f"an arm/disarm command from system {ts} component {tc} was accepted")
-        elif kind == "SYS_STATUS":
-            if msg.onboard_control_sensors_present & MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS:
-                if msg.onboard_control_sensors_enabled & MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS:
-                    self._motors_enabled_seen = True
-                elif self._motors_enabled_seen:
-                    self._saw_disarm("SYS_STATUS shows the motor outputs disabled")
-        elif kind == "EXTENDED_SYS_STATE":
-            if msg.landed_state == MAV_LANDED_STATE_IN_AIR:
-                self._in_air_seen = True
-            elif msg.landed_state == MAV_LANDED_STATE_ON_GROUND and self._in_air_seen:
-                self._saw_disarm("EXTENDED_SYS_STATE shows the vehicle on the ground")
+        elif kind == "SYS_STATUS" and msg.onboard_control_sensors_present & MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS:
+            if msg.onboard_control_sensors_enabled & MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS:
+                self._motors_enabled_seen = True
+            elif self._motors_enabled_seen:
+                self._saw_disarm("SYS_STATUS shows the motor outputs disabled")
 
     def _saw_disarm(self, what: str) -> None:
         """Keep the first sign of a disarm while supervising (before: the loop's own arming, not a fault)."""
