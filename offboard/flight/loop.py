@@ -4,8 +4,10 @@ with watchdogs, signal handling and loop statistics. Single-threaded; the same e
 
 Pacing
     ``realtime`` (default): the loop asks the autopilot for ATTITUDE at ``rate_hz`` and runs one tick as soon as
-    each ATTITUDE arrives (so the telemetry-to-setpoint latency is the compute time, not up to a period); when
-    no ATTITUDE arrives within 1.5 periods of the previous tick, the tick runs on that deadline instead. The
+    an ATTITUDE arrives (so the telemetry-to-setpoint latency is the compute time, not up to a period), each tick
+    in a slot of a nominal grid one period apart: on the first ATTITUDE no earlier than half a period before the
+    slot, else on its deadline half a period after it, so that a jittered link keeps the nominal rate
+    (``offboard.flight.tick_pacing``). The
     vehicle time of a tick is the local time mapped through :class:`~offboard.flight.link.connection.VehicleClock`.
     ``lockstep`` (the bundled emulator's handshake, ``docs/emulator.md``): every setpoint advances the emulated
     vehicle by one period; it then sends the telemetry of that period and a SYSTEM_TIME marker whose
@@ -40,8 +42,8 @@ Watchdogs (each ends offboard control by switching the vehicle to its hold mode,
 
 Statistics (:class:`LoopStats`): achieved rate, compute time (tick start to setpoint written) p50 / p99,
 telemetry-to-setpoint latency (arrival of the newest telemetry used to setpoint written) p50 / p99, and missed
-deadlines: ticks whose setpoint left more than 1.5 periods after the previous one, or whose compute time
-exceeded a period.
+deadlines: ticks whose setpoint left more than a quarter period after their slot's deadline, or whose compute
+time exceeded a period (``offboard.flight.tick_pacing``).
 
 Where each job lives: :class:`FlightLoop` (this module) holds the flight's state and runs it from preflight to
 the end (``run``); its jobs are mixins over that one state, each in its own module: the link and supervision

@@ -19,6 +19,7 @@ from offboard.control.tick import ActuatorLag, ControlTick
 from offboard.flight.command_mapping import setpoint_fields
 from offboard.flight.loop_link import FlightAbortError
 from offboard.flight.setpoint_echo import ATTITUDE_IGNORE
+from offboard.flight.tick_pacing import TickPacer
 
 #: lockstep: how much longer (wall s) a tick waits for the next step marker after a late one (``_next_step``)
 LATE_MARKER_WAIT_S = 0.25
@@ -105,6 +106,8 @@ class TickLoop:
         # the path from telemetry to setpoint; slung replay does the same at the same place
         prefuse = getattr(estimator, "prefuse", None)
         prefuse_ahead = prefuse_lead(period)
+        pacer = TickPacer(period)  # real time: each tick's slot on the nominal grid (offboard.flight.tick_pacing)
+        got = False
         t_act = t_obs = t_v
         while True:
             t_v = t_obs  # the observation clock of the previous tick (t_v becomes the action time below)
@@ -118,8 +121,7 @@ class TickLoop:
                 else:
                     t_v = t_next
             else:
-                limit = 1.5 * period - (time.monotonic() - (self.last_send_local or time.monotonic()))
-                got = self._wait(max(limit, 0.0))
+                got = self._await_slot(pacer)
                 if not got:
                     stats.deadline_ticks += 1
                     self.trigger_local = None
@@ -174,8 +176,9 @@ class TickLoop:
             if stats.ticks > 0 and self._prev_sent is not None:
                 gap = sent - self._prev_sent
                 stats.gaps.append(gap)
-                if not lockstep and (gap > 1.5 * period or compute > period):
-                    stats.missed += 1
+            if not lockstep:
+                stats.missed += pacer.missed(sent, compute)
+                pacer.ticked(sent, got)
             self._prev_sent = sent
             stats.ticks += 1
             tr = (*truth[0], truth[1], *(truth[2] if len(truth) > 2 else nan4)) if truth is not None else nan23
@@ -213,6 +216,18 @@ class TickLoop:
             v = self.supervisor.check_tracking(est.fx[0] - rfx[0], est.fy[0] - rfy[0], est.z - rz[0])
             if v is not None:
                 raise FlightAbortError(v.kind, v.reason, v.action)
+
+    def _await_slot(self, pacer: TickPacer) -> bool:
+        """Real time: wait for this tick's moment (``offboard.flight.tick_pacing``): the first trigger no earlier than
+        half a period before its slot, else its deadline; True if a trigger came. A pending signal ends the wait."""
+        early, deadline = pacer.window(time.monotonic())
+        got = False
+        while True:
+            now = time.monotonic()
+            if (got and now >= early) or now >= deadline or self._signal is not None:
+                return got
+            if self._wait((early if got else deadline) - now):
+                got = True
 
     def _next_step(self, t_prev: float, last_marker: float | None) -> tuple[float | None, float | None]:
         """Lockstep: the vehicle time of the next tick (s), from the step markers, or None when none came within
