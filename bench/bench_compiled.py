@@ -1,14 +1,13 @@
-"""Throughput of ``slung sweep``'s compiled engine (``offboard.harness.compiled``) against the numpy batched path and
-the scalar path, measured in the same process and the same run, and where a compiled tick goes.
+"""Throughput of ``slung sweep``'s compiled engine (``offboard.harness.compiled``) against the scalar path, measured in
+the same process and the same run, and where a compiled tick goes.
 
-1. the scalar path (``offboard.harness.sweep.run_one``: one run of the default file, filter, sensors, mixer);
-2. the numpy batched path (``offboard.harness.batched.run_batch``) on ``--batched`` runs;
-3. the compiled engine (``offboard.harness.compiled.engine.run_batch``) on ``--runs`` runs, with its parts: the
+1. the scalar path (``offboard.harness.sweep.run_one``: ``--scalar`` runs of the default file, filter, sensors, mixer);
+2. the compiled engine (``offboard.harness.compiled.engine.run_batch``) on ``--runs`` runs, with its parts: the
    kernel flying the runs (``fly_run``), each run's record schedule, the rest (draws, constants, Python);
-4. the compiled kernels one call at a time (ns per call, a numba loop around each): RK4 step, tension, each law,
+3. the compiled kernels one call at a time (ns per call, a numba loop around each): RK4 step, tension, each law,
    the true state; the filter's whole cost per tick follows from 3.
 
-    python bench/bench_compiled.py [--runs 400] [--batched 100] [--repeat 3]
+    python bench/bench_compiled.py [--runs 400] [--scalar 2] [--repeat 3]
 
 Figures in CPU seconds (``time.process_time``; wall seconds beside them), the best of ``--repeat`` rounds, after a
 warm-up that loads (or compiles) the kernels. One process, one core: ``slung sweep --workers 2`` runs two such
@@ -25,7 +24,7 @@ import numpy as np
 
 from estimators.model.vehicle import Vehicle
 from offboard.control.controllers import registry
-from offboard.harness import batched, sweep
+from offboard.harness import sweep
 from offboard.harness.compiled import engine
 from offboard.harness.compiled import laws as claws
 from offboard.harness.compiled import plant as cp
@@ -41,7 +40,7 @@ def _timed(f, *args):  # type: ignore[no-untyped-def]
     return out, time.process_time() - c0, time.perf_counter() - w0
 
 
-def paths(runs: int, batched_runs: int, repeat: int) -> dict[str, dict[str, float]]:
+def paths(runs: int, scalar_runs: int, repeat: int) -> dict[str, dict[str, float]]:
     """Simulated seconds per CPU and wall second of each path (best of ``repeat``), and the compiled parts."""
     cfg = sweep.load_config(None)
     engine.run_batch(cfg, "smc", [0])  # load or compile the kernels; sample the reference once
@@ -49,8 +48,7 @@ def paths(runs: int, batched_runs: int, repeat: int) -> dict[str, dict[str, floa
     best: dict[str, tuple[float, float]] = {}
     for _ in range(repeat):
         for name, call, n in (
-            ("scalar", lambda: sweep.run_one(cfg, "smc", 0), 1),
-            ("batched", lambda: batched.run_batch(cfg, "smc", list(range(batched_runs))), batched_runs),
+            ("scalar", lambda: [sweep.run_one(cfg, "smc", r) for r in range(scalar_runs)], scalar_runs),
             ("compiled", lambda: engine.run_batch(cfg, "smc", list(range(runs))), runs),
         ):
             _, c, w = _timed(call)
@@ -171,18 +169,17 @@ def kernels(n: int = 200_000) -> dict[str, float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--runs", type=int, default=400, help="runs of the compiled engine per round")
-    ap.add_argument("--batched", type=int, default=100, help="runs of the numpy batched path per round")
+    ap.add_argument("--scalar", type=int, default=2, help="runs of the scalar path per round")
     ap.add_argument("--repeat", type=int, default=3, help="rounds (the best is kept)")
     args = ap.parse_args()
-    r = paths(args.runs, args.batched, args.repeat)
+    r = paths(args.runs, args.scalar, args.repeat)
     sc = r["scalar"]["per_cpu_s"]
-    for name in ("scalar", "batched", "compiled"):
+    for name in ("scalar", "compiled"):
         f = r[name]
         print(
             f"{name:<9} {f['runs']:>5} runs of 13 s: {f['per_cpu_s']:8.1f} simulated s per CPU s "
             f"({f['per_wall_s']:.1f} per wall s), {f['per_cpu_s'] / sc:6.1f}x the scalar path"
         )
-    print(f"compiled / batched: {r['compiled']['per_cpu_s'] / r['batched']['per_cpu_s']:.1f}x per CPU s")
     parts = r["compiled_parts"]
     print(
         f"compiled parts: the kernel {parts['kernel_ns_per_tick']:.0f} ns per run and tick "

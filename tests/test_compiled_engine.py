@@ -140,15 +140,17 @@ def test_two_worker_dask_cluster_with_the_compiled_engine_gives_the_results_of_o
     assert (one / "results.csv").read_text(encoding="utf-8") == (two / "results.csv").read_text(encoding="utf-8")
 
 
-def test_smc_attitude_is_compiled_and_falls_back_to_the_scalar_path_in_the_batched_engine(tmp_path: Path) -> None:
-    """The compiled engine flies every row (``smc-attitude``: ``tests/test_compiled_attitude.py``), the batched one
-    leaves ``smc-attitude`` to the scalar path; the attitude-level law flies only through PX4's attitude loops."""
+def test_the_compiled_engine_flies_every_row_and_the_scalar_engine_is_the_scalar_path(tmp_path: Path) -> None:
+    """The compiled engine flies every row (``smc-attitude``: ``tests/test_compiled_attitude.py``), the scalar one
+    none; the attitude-level law flies only through PX4's attitude loops; the engines are these two (the numpy
+    batched path is gone: a file naming it gets one line naming the engines)."""
     cfg = sweep.load_config(_short_file(tmp_path))
-    assert sweep.engine_for(cfg, "smc-attitude") == "compiled"
-    assert sweep.engine_for(cfg, "smc") == "compiled"
-    batched_cfg = sweep.load_config(_short_file(tmp_path, engine="batched"))
-    assert sweep.engine_for(batched_cfg, "smc-attitude") == "scalar"
-    assert sweep.engine_for(batched_cfg, "smc") == "batched"
+    assert {sweep.engine_for(cfg, c) for c in registry.CONTROLLERS} == {"compiled"}
+    scalar_cfg = sweep.load_config(_short_file(tmp_path, engine="scalar"))
+    assert {sweep.engine_for(scalar_cfg, c) for c in registry.CONTROLLERS} == {"scalar"}
+    assert sweep.ENGINES == ("scalar", "compiled")
+    with pytest.raises(UserError, match=r"run\.engine must be one of scalar, compiled, got 'batched'"):
+        sweep.load_config(_short_file(tmp_path, engine="batched"))
     with pytest.raises(ValueError, match="'smc-attitude' with actuators px4-attitude"):
         engine.simulate([], [], registry.smc_params(V), law="smc-attitude", actuators="mixer")
     with pytest.raises(ValueError, match="'smc' with actuators ideal or mixer"):
@@ -157,9 +159,9 @@ def test_smc_attitude_is_compiled_and_falls_back_to_the_scalar_path_in_the_batch
 
 def test_a_file_with_actuators_the_fast_engines_do_not_model_is_flown_by_the_scalar_path(tmp_path: Path) -> None:
     """``actuators = "px4"`` (PX4's allocator behind the torque-level law) is the scalar path's alone: with the
-    compiled or batched engine in the file the sweep still flies, every row by the scalar path, and says so in its
-    summary, where a fast engine would have raised in the middle of the sweep."""
-    for eng in ("compiled", "batched"):
+    compiled engine in the file the sweep still flies, every row by the scalar path, and says so in its summary,
+    where the compiled engine would have raised in the middle of the sweep."""
+    for eng in ("compiled",):
         (tmp_path / eng).mkdir()
         f = _short_file(tmp_path / eng, engine=eng)
         text = f.read_text(encoding="utf-8").replace('actuators = "mixer"', 'actuators = "px4"')
@@ -173,8 +175,8 @@ def test_a_file_with_actuators_the_fast_engines_do_not_model_is_flown_by_the_sca
 
 def test_a_vehicle_without_a_load_is_refused_by_sweep_and_compare_in_one_line(tmp_path: Path) -> None:
     """Sweep and compare judge a load's swing and tracking; without a load (``px4-sih``) the plant swings a massless
-    pendulum and every figure means nothing (the compiled engine's filter raised in its warm-up, its runs and the
-    batched ones diverged, the scalar ones "failed" on that swing): both commands refuse such a vehicle with one
+    pendulum and every figure means nothing (the compiled engine's filter raised in its warm-up, the scalar
+    runs "failed" on that swing): both commands refuse such a vehicle with one
     line naming it, exit 2, no traceback."""
     import subprocess
     import sys
@@ -198,16 +200,14 @@ def test_a_vehicle_without_a_load_is_refused_by_sweep_and_compare_in_one_line(tm
 def test_warm_up_loads_the_compiled_engine_only_for_its_rows(tmp_path: Path) -> None:
     """``slung sweep`` loads (or compiles) the kernels in its own process before the Dask workers start: a run of
     each compiled row; nothing for an engine that is not compiled."""
-    assert sweep.warm_up(sweep.load_config(_short_file(tmp_path, engine="batched")), ["smc", "lqr"]) == 0.0
+    assert sweep.warm_up(sweep.load_config(_short_file(tmp_path, engine="scalar")), ["smc", "lqr"]) == 0.0
     assert sweep.warm_up(sweep.load_config(_short_file(tmp_path)), ["smc", "lqr"]) > 0.0
 
 
 def test_only_the_shaped_rows_have_a_reference_of_their_own() -> None:
     """The sweep samples its reference once for every row that flies it unshaped (``inputs.SHAPED_LAWS``): the
-    rows whose batched law really has a shaper in front of it (``batched.batched_law``) are exactly those."""
-    from offboard.harness.batched import batched_law
-
+    rows whose registry controller really has a shaper in front of it (``ShapedCascade``) are exactly those."""
     for law in cin.COMPILED_LAWS:
-        has_shaper = law not in ("smc", "smc-attitude") and batched_law(law, V, 1)[1] is not None
+        has_shaper = getattr(registry.make(law, V), "shaper", None) is not None
         assert has_shaper == (law in cin.SHAPED_LAWS), law
         assert (cin.law_shaper(law, V) is not None) == has_shaper, law

@@ -1,6 +1,7 @@
-"""The compiled engine's plant, sensors, gust and mixer (``offboard.harness.compiled.plant``) against the numpy batched
-path's (``offboard.harness.batched``, ``offboard.harness.batched_sensors``) and the scalar plant
-(``sim_bridge.plant.dynamics``): the same values on random states, inputs and vehicles."""
+"""The compiled engine's plant, sensors, gust and mixer (``offboard.harness.compiled.plant``) against the scalar
+plant (``sim_bridge.plant.dynamics``), sensors (``sim_bridge.plant.sensors.SensorSuite``), mixer
+(``sim_bridge.inner.airframe.Mixer``) and true state (``estimators.model.flatness``): the same values on random
+states, inputs and vehicles."""
 
 from __future__ import annotations
 
@@ -10,10 +11,12 @@ import numpy as np
 import pytest
 
 from estimators.model.vehicle import load_vehicle
-from offboard.harness import batched, sweep
-from offboard.harness import batched_sensors as bs
+from offboard.harness import sweep
+from offboard.harness.compiled import layout as lay
 from offboard.harness.compiled import plant as cp
+from sim_bridge.inner.airframe import Mixer
 from sim_bridge.plant import dynamics
+from sim_bridge.plant.sensors import SensorSuite
 
 V = load_vehicle(None)
 RNG = np.random.default_rng(7)
@@ -106,22 +109,29 @@ def test_drag_equals_the_scalar_drag_and_leaves_slots_without_it() -> None:
             np.testing.assert_array_equal(mine[4:7], u[4:7])
 
 
-@pytest.mark.parametrize("kind", [bs.POS, bs.ATT, bs.IMU, bs.LOAD])
-def test_sensor_values_equal_the_batched_path(kind: int) -> None:
+class _GivenNoise(SensorSuite):
+    """The scalar sensors with the next record's noise given (``noise``) instead of drawn."""
+
+    noise: tuple[float, ...] = ()
+
+    def _noise(self, sigmas: object, n: int) -> list[float]:
+        return list(self.noise[:n])
+
+
+@pytest.mark.parametrize("kind", [lay.POS, lay.ATT, lay.IMU, lay.LOAD])
+def test_sensor_values_equal_the_scalar_sensors(kind: int) -> None:
     """A record's values from the state, the plant's derivative, gravity, the accelerometer's bias and the noise:
-    ``batched_sensors.measure`` (which equals the scalar suite) to 1e-14."""
-    vs = _vehicles(8)
-    x = np.stack([_state() for _ in vs], axis=1)
-    u = np.stack([_input() for _ in vs], axis=1)
-    bp = batched.BatchPlant(vs)
-    deriv = batched.derivative(x, u, bp)
-    bias = RNG.normal(0.0, 0.05, (3, len(vs)))
-    e = RNG.normal(0.0, 0.01, (bs.FIELDS[kind], len(vs)))
-    want = bs.measure(kind, x, u, deriv, bp.g, bias, e)
-    out = np.empty(6)
-    for b in range(len(vs)):
-        cp.measure(kind, x[:, b], deriv[:, b], bp.g[b], bias[:, b], e[:, b], out)
-        np.testing.assert_allclose(out[: bs.FIELDS[kind]], want[:, b], rtol=1e-14, atol=1e-14)
+    the scalar ``SensorSuite._measure`` of the same state, input and noise, to 1e-14."""
+    for v in _vehicles(8):
+        x, u = _state(), _input()
+        suite = _GivenNoise("px4-typical", v, np.random.default_rng(3), load_sensor=True)
+        suite.noise = tuple(RNG.normal(0.0, 0.01, 6).tolist())
+        rec = suite._measure(suite._streams[kind], 0.0, x.tolist(), u.tolist())
+        want = [float(f) for f in rec[1:]]  # the record's fields after its time
+        deriv = np.asarray(dynamics.derivative(0.0, x, u, dynamics.plant_params(v, "paper")))
+        out = np.empty(6)
+        cp.measure(kind, x, deriv, v.gravity, np.array(suite.accel_bias), np.array(suite.noise), out)
+        np.testing.assert_allclose(out[: lay.FIELDS[kind]], want, rtol=1e-14, atol=1e-14)
 
 
 def test_gust_equals_the_sweeps_gust() -> None:
@@ -139,13 +149,14 @@ def test_gust_equals_the_sweeps_gust() -> None:
     assert not out.any()
 
 
-def test_mixer_equals_the_batched_mixer_through_saturation() -> None:
+def test_mixer_equals_the_scalar_mixer_through_saturation() -> None:
     """Allocation and the motors' lag over 300 plant steps of random wrenches, some far beyond the motors' limits
-    (roll / pitch first, the collective shifted, yaw with what is left): ``BatchMixer`` to 1e-14."""
+    (roll / pitch first, the collective shifted, yaw with what is left): the scalar ``Mixer`` to 1e-14."""
     vs = _vehicles(6)
-    mix = bs.BatchMixer(vs, 1e-3)
-    hover = np.array([(v.mass_vehicle + v.mass_load) * v.gravity for v in vs])
-    mix.reset(0.25 * hover)
+    mixers = [Mixer(v, 1e-3) for v in vs]
+    hover = [(v.mass_vehicle + v.mass_load) * v.gravity for v in vs]
+    for m, h in zip(mixers, hover):
+        m.reset(0.25 * h)
     consts = [cp.mixer_constants(v, 1e-3) for v in vs]
     f = [np.full(4, 0.25 * h) for h in hover]
     cmd = [fi.copy() for fi in f]
@@ -155,31 +166,31 @@ def test_mixer_equals_the_batched_mixer_through_saturation() -> None:
         w = np.stack(
             [RNG.uniform(-2.0, 20.0, len(vs)), *RNG.normal(0.0, 1.5, (2, len(vs))), RNG.normal(0, 0.2, len(vs))]
         )
-        mix.allocate(w[0], w[1], w[2], w[3])
-        want = mix.step()
-        for b, c in enumerate(consts):
+        for b, (c, m) in enumerate(zip(consts, mixers)):
+            want_cmd = m.allocate(*(float(wi) for wi in w[:, b]))
+            want = m.step()
             cp.mixer_allocate(c, w[0, b], w[1, b], w[2, b], w[3, b], cmd[b])
-            np.testing.assert_allclose(cmd[b], mix.cmd[:, b], rtol=1e-14, atol=1e-14)
+            np.testing.assert_allclose(cmd[b], want_cmd, rtol=1e-14, atol=1e-14)
             clipped += bool(np.any(cmd[b] == c[cp.MIX_FMAX]) or np.any(cmd[b] == 0.0))
             cp.mixer_step(c, f[b], cmd[b], u)
-            np.testing.assert_allclose(u[:4], want[:, b], rtol=1e-14, atol=1e-14)
+            np.testing.assert_allclose(u[:4], want, rtol=1e-14, atol=1e-14)
     assert clipped > 100  # the limits were met
 
 
-def test_truth_state_equals_the_batched_truth_state() -> None:
-    from estimators.model.flatness import flat_constants
-    from offboard.harness.compiled import layout as lay
+def test_truth_state_equals_the_scalar_true_state() -> None:
+    """``truth_state`` against ``estimators.model.flatness.truth_control_state`` (the scalar path's true estimate)."""
+    from estimators.model.flatness import flat_constants, truth_control_state
 
     k = flat_constants(V)
-    xs = np.stack([_state() for _ in range(10)], axis=1)
-    want = batched.truth_state(xs, k)
     out = np.empty(lay.EST_SIZE)
-    for b in range(xs.shape[1]):
-        cp.truth_state(xs[:, b], k.l, k.g, k.c, out)
-        np.testing.assert_allclose(out[lay.EST_FX : lay.EST_FX + 6], want["fx"][:, b], rtol=1e-14, atol=1e-14)
-        np.testing.assert_allclose(out[lay.EST_FY : lay.EST_FY + 6], want["fy"][:, b], rtol=1e-14, atol=1e-14)
+    for _ in range(10):
+        x = _state()
+        want = truth_control_state(x, k)
+        cp.truth_state(x, k.l, k.g, k.c, out)
+        np.testing.assert_allclose(out[lay.EST_FX : lay.EST_FX + 6], want.fx, rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(out[lay.EST_FY : lay.EST_FY + 6], want.fy, rtol=1e-14, atol=1e-14)
         for name, i in (("z", lay.EST_Z), ("psi_rate", lay.EST_PSI_RATE), ("alpha_x_rate", lay.EST_ALPHA_X_RATE)):
-            assert out[i] == pytest.approx(want[name][b], rel=1e-14, abs=1e-14)
+            assert out[i] == pytest.approx(getattr(want, name), rel=1e-14, abs=1e-14)
     assert math.isfinite(out.sum())
 
 

@@ -1,5 +1,5 @@
-"""The compiled sensor-record schedule (``offboard.harness.compiled.schedule``) equals the Python one
-(``offboard.harness.batched_sensors.schedule``) array for array, and leaves the generator in the scalar path's state.
+"""The compiled sensor-record schedule (``offboard.harness.compiled.schedule``) equals the Python one on the scalar
+``SensorSuite`` (``tests/schedule_reference.py``) array for array, and leaves the generator in the scalar path's state.
 
 13 s runs (the sweep's default scenario: 1 + 4 + 8 s), at 1 kHz control (1 plant step per tick) and at 250 Hz
 control (4 plant steps per tick); the presets as named and as the sweep scales them (noise x0.5..2, latency +0..20 ms:
@@ -13,12 +13,13 @@ from typing import Any
 
 import numpy as np
 import pytest
+import schedule_reference
 
-from estimators.filters.batched_kf import GYRO
 from estimators.model.vehicle import load_vehicle
-from offboard.harness import batched_sensors, sweep
-from offboard.harness.batched_sensors import ADVANCE
+from offboard.harness import sweep
 from offboard.harness.compiled import schedule as compiled
+from offboard.harness.compiled.layout import ADVANCE, GYRO
+from offboard.harness.compiled.schedule import RunSchedule
 from sim_bridge.plant.sensors import preset_spec
 
 PLANT_DT = 0.001
@@ -30,11 +31,11 @@ VEHICLE = load_vehicle(None)  # the Python path's SensorSuite needs one (the sch
 
 
 def n_ticks(control_dt: float) -> int:
-    """Control ticks of a 13 s run (as offboard.harness.batched.simulate counts them)."""
+    """Control ticks of a 13 s run (as offboard.harness.compiled.engine.simulate counts them)."""
     return math.floor(DURATION_S / control_dt + 1e-9) + 1
 
 
-def assert_same(a: batched_sensors.RunSchedule, b: batched_sensors.RunSchedule) -> None:
+def assert_same(a: RunSchedule, b: RunSchedule) -> None:
     """Every array of the two schedules equal, with the same dtype and shape."""
     pairs = [
         (f"{name}[{k}]", x, y)
@@ -53,10 +54,10 @@ def both(preset: Any, seed: int, timing: tuple[float, int], **flags: Any) -> tup
     dt, substeps = timing
     args = (preset, VEHICLE, seed, n_ticks(dt), dt, PLANT_DT, substeps)
     kw = {"delay_s": DELAY_S, **flags}
-    return batched_sensors.schedule(*args, **kw), compiled.schedule(*args, **kw)
+    return schedule_reference.schedule(*args, **kw), compiled.schedule(*args, **kw)
 
 
-def dropped(run: batched_sensors.RunSchedule) -> int:
+def dropped(run: RunSchedule) -> int:
     """Records the filter never fused though later records of their kind were (late records)."""
     out = 0
     for code in (0, 1, 2, 3, GYRO):
@@ -118,7 +119,7 @@ def python_generator_state(preset: Any, seed: int, timing: tuple[float, int], lo
     ``SensorSuite.sample`` (values left out) called at every plant step, as ``offboard.harness.sim`` calls it."""
     dt, substeps = timing
     rng = np.random.default_rng(seed)
-    suite = batched_sensors._DrySuite(preset, VEHICLE, rng, load_sensor=load_sensor)
+    suite = schedule_reference._DrySuite(preset, VEHICLE, rng, load_sensor=load_sensor)
     for tick in range(n_ticks(dt) - 1):
         for i in range(substeps):
             suite.sample(tick * dt + (i + 1) * PLANT_DT, None, None)

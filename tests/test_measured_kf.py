@@ -72,7 +72,7 @@ def test_multiplied_out_predictions_equal_the_general_ones_to_the_bit(h: float) 
     """The filter's hot-path predictions (``predict_kinematic``, ``predict_pendulum``, ``predict_rate``: the
     transitions' zeros and ones multiplied out) give the very floats of the general prediction with the models'
     matrices, with and without an input (the series branch of the pendulum at the shortest step). Exact equality,
-    so that the batched filter, which follows the general expressions, still equals the scalar one."""
+    so that the compiled filter, which follows the general expressions, still equals the scalar one."""
     rng = np.random.default_rng(7)
     for u in (0.0, 1.7, -0.4):
         x, p = _random_block(rng, 3)

@@ -18,7 +18,6 @@ from estimators.model.control_state import ControlState
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc
 from offboard.flight.flight_law import torque_law_params
-from offboard.harness.batched_controllers import smc_step as smc_step_batched
 from sim_bridge.inner.px4_inner import Px4ActuatorPath
 
 VEHICLE = Vehicle()
@@ -119,18 +118,23 @@ def test_the_pair_keeps_its_direction_and_the_thrust_yields_the_margin() -> None
 
 
 @pytest.mark.parametrize("switching", ["sign", "layers"])
-def test_batched_law_limits_the_pair_as_the_scalar_one(switching: str) -> None:
-    # "layers": the flight default, each loop's own boundary layer (docs/model.md C-12); on these states a batched
+def test_compiled_law_limits_the_pair_as_the_scalar_one(switching: str) -> None:
+    # "layers": the flight default, each loop's own boundary layer (docs/model.md C-12); on these states a compiled
     # law that used one epsilon instead differs from the scalar one in 19 of 50 (thrust by up to 0.17 N)
+    from offboard.harness.compiled import laws
+    from offboard.harness.compiled.layout import EST_SIZE
+
     layered = switching == "layers"
     params = torque_law_params(VEHICLE, "smooth" if layered else "sign", 1.0, layered=layered)
     states = _states(50, seed=12)
     rfx, rfy, rz, rpsi = _hover_ref()
-    est = {f: np.array([getattr(e, f) for e in states]) for f in ControlState._fields}
-    est["fx"], est["fy"] = est["fx"].T, est["fy"].T
-    u, _, _ = smc_step_batched(0.0, est, rfx, rfy, rz, rpsi, np.zeros((8, len(states))), params)
-    for k, e in enumerate(states):
+    code, c, K = laws.law_constants("smc", VEHICLE, params)
+    pad = (0.0,) * 4  # the reference row carries orders 0..6 of z and psi too
+    ref = np.array([*rfx, *rfy, *rz, *pad, *rpsi, *pad])
+    u = np.zeros(4)
+    for e in states:
+        est = np.array([*e.fx, *e.fy, *e[2:]], dtype=float)
+        assert est.shape == (EST_SIZE,)
+        laws.law_step(code, c, K, laws.law_memory(code, c), 0.0, 0.0, est, ref, u)
         cmd, _ = smc.step(0.0, e, rfx, rfy, rz, rpsi, smc.ControllerMemory(), params)
-        np.testing.assert_allclose(
-            u[:, k], (cmd.thrust, cmd.tau_phi, cmd.tau_theta, cmd.tau_psi), rtol=1e-9, atol=1e-12
-        )
+        np.testing.assert_allclose(u, (cmd.thrust, cmd.tau_phi, cmd.tau_theta, cmd.tau_psi), rtol=1e-9, atol=1e-12)

@@ -1,5 +1,5 @@
 """``slung sim``'s plant feels the vehicle file's still-air drag as the emulator's does (SIH_KDV, SIH_KDW), and the
-batched sweep path flies the same drag as the scalar one."""
+compiled sweep engine flies the same drag as the scalar one (``tests/test_sweep.py``)."""
 
 from __future__ import annotations
 

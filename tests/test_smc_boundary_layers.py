@@ -1,7 +1,7 @@
 """The torque-level law's per-loop boundary layers (``boundary_layers.error_boundary_layers``, docs/model.md
 C-12): each loop's smooth switching width is the value its own sliding variable takes for a small tracking error,
 it follows a gain scaling, each loop gets its own width (not another loop's), and flights use it by default (the
-batched law: tests/test_roll_pitch_margin.py; the record for replay: tests/test_replay.py)."""
+compiled law: tests/test_roll_pitch_margin.py; the record for replay: tests/test_replay.py)."""
 
 from __future__ import annotations
 

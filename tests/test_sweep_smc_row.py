@@ -1,5 +1,5 @@
 """The ``smc`` row of ``slung sweep`` (``registry.smc_params``, ``registry.filter_tuning``): the filter's external
-acceleration fed forward is the same in the batched path as in the scalar one, and on two of the default sweep's
+acceleration fed forward is the same in the compiled engine as in the scalar path, and on two of the default sweep's
 runs that failed before it (docs/compare.md, "What is left, per failure") the row's law and filter fly: a late
 gust's residual swing falls under the bound, a large initial swing on slow motors no longer ends at the watchdog."""
 
@@ -15,7 +15,8 @@ from estimators.model.vehicle import Vehicle
 from offboard.control import smc
 from offboard.control.controllers import registry
 from offboard.control.controllers.sliding_mode import SlidingModeController
-from offboard.harness import batched, sim, sweep
+from offboard.harness import sim, sweep
+from offboard.harness.compiled import engine
 from offboard.logs.runlog import SimConfig
 
 V = Vehicle()
@@ -42,7 +43,7 @@ def _fly_run(run: int, params: smc.ControllerParams, tuning: MeasuredTuning | No
     return sweep.evaluate(cfg, log.data, sc.arrival_time, log.slack_steps)
 
 
-def test_the_external_feedforward_of_the_batched_filter_equals_the_scalar_one(tmp_path: Path) -> None:
+def test_the_external_feedforward_of_the_compiled_filter_equals_the_scalar_one(tmp_path: Path) -> None:
     """Two drawn runs with a 1 N gust during a short move, the row's filter tuning: the plant and the estimate to
     1e-9 in both paths, and the feed-forward acts (the trajectories differ from those without it)."""
     cfg = replace(sweep.load_config(None), move_time_s=1.0, hold_s=1.0)
@@ -57,8 +58,8 @@ def test_the_external_feedforward_of_the_batched_filter_equals_the_scalar_one(tm
     presets = [sweep.sensor_preset(cfg, d) for d in draws]
     seeds = [int(d["sensor_seed"]) for d in draws]
     kw = {"estimator": "kf", "actuators": "mixer", "sensors": presets, "seeds": seeds, "load_sensor": True}
-    log = batched.simulate(scs, vehicles, params, tuning=FF, **kw)
-    off = batched.simulate(scs, vehicles, params, **kw)
+    log = engine.simulate(scs, vehicles, params, tuning=FF, **kw)
+    off = engine.simulate(scs, vehicles, params, **kw)
     for b in range(2):
         sim_cfg = SimConfig(estimator="kf", sensors=cfg.sensors, actuators="mixer", seed=seeds[b])
         ref = sim.run(

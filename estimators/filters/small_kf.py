@@ -107,9 +107,7 @@ def predict(x: list[float], p: Matrix, phi: Matrix, gamma: list[float] | None, u
 
 
 def propagate_cov(p: Matrix, phi: Matrix, q: Matrix) -> None:
-    """``P <- Phi P Phi^T + Q`` in place for any number of states (the sums of the general loop); the entries may be
-    floats or numpy arrays of runs, as in :func:`propagate_cov3` (``estimators.filters.batched_kf``'s two-state
-    blocks)."""
+    """``P <- Phi P Phi^T + Q`` in place for any number of states (the sums of the general loop)."""
     rn = range(len(p))
     fp = [[sum(phi[i][k] * p[k][j] for k in rn) for j in rn] for i in rn]  # Phi P
     for i in rn:
@@ -153,8 +151,7 @@ def _predict3(x: list[float], p: Matrix, phi: Matrix, gamma: list[float] | None,
 
 def propagate_cov3(p: Matrix, phi: Matrix, q: Matrix) -> None:
     """``P <- Phi P Phi^T + Q`` in place for three states, unrolled, ``P`` and ``Q`` symmetric (their upper
-    triangles are read). The entries may be floats or numpy arrays of runs (``estimators.filters.batched_kf``
-    propagates many runs' covariances with the same expressions, so the two agree to the last bit)."""
+    triangles are read). ``offboard.harness.compiled.kf`` propagates a run's covariances with the same expressions."""
     (f00, f01, f02), (f10, f11, f12), (f20, f21, f22) = phi
     (p00, p01, p02), (_, p11, p12), (_, _, p22) = p
     # A = Phi P (rows), then A Phi^T

@@ -5,12 +5,10 @@ the sensors' noise and latency, a wind gust and an initial swing from the distri
 controllers keep the nominal vehicle (the file's, default the paper's Table 1): what a controller tuned for one
 vehicle does with the vehicle it really flies. Every controller flies the same drawn runs (run ``i`` draws from
 the seed ``(seed, i)`` whatever the chunking, the worker or the order runs finish in), with the Kalman filter in
-the loop on the drawn sensors, run by run (``engine = "scalar"``, ``offboard.harness.sim.run``), many runs at once in
-the batched numpy path (``engine = "batched"``, ``offboard.harness.batched``: the same plant, sensors, filter, mixer and
-laws over arrays), or run by run as machine code (``engine = "compiled"``, ``offboard.harness.compiled``: the same
-equations compiled with numba, the default). The compiled engine flies every controller; the batched one every one
-but ``smc-attitude`` (through PX4's attitude loops), which falls back to the scalar path (the summary says per
-controller).
+the loop on the drawn sensors, run by run (``engine = "scalar"``, ``offboard.harness.sim.run``) or run by run as
+machine code (``engine = "compiled"``, ``offboard.harness.compiled``: the same equations compiled with numba, the
+default). The compiled engine flies every controller; a file asking for an estimator or actuators it does not
+model is flown by the scalar path (the summary says per controller).
 
 The file (``offboard/harness/sweeps/default.toml`` is the default and the documentation of every key)::
 
@@ -131,7 +129,7 @@ class SweepConfig:
 
 
 #: the paths a sweep's runs can be flown by (see the module docstring)
-ENGINES = ("scalar", "batched", "compiled")
+ENGINES = ("scalar", "compiled")
 SUCCESS_KEYS = ("max_swing_rad", "residual_swing_rad", "tracking_rms_m", "final_error_m", "divergence_m")
 
 
@@ -411,10 +409,6 @@ def run_chunk(config_dict: dict[str, Any], controller: str, runs: list[int]) -> 
         from offboard.harness.compiled.engine import run_batch as run_compiled
 
         rows = run_compiled(config, controller, runs)
-    elif engine == "batched":
-        from offboard.harness.batched import run_batch
-
-        rows = run_batch(config, controller, runs)
     else:
         rows = [run_one(config, controller, r) for r in runs]
     cpu = (time.process_time() - cpu0) / max(len(rows), 1)
@@ -443,21 +437,18 @@ def warm_up(config: SweepConfig, controllers: list[str]) -> float:
 
 
 def engine_for(config: SweepConfig, controller: str) -> str:
-    """The path that flies ``controller``'s runs: the file's engine, except that the batched path flies the rows of
-    ``offboard.harness.batched.BATCHED_LAWS`` only (``smc-attitude``, through PX4's attitude loops, falls back to the
-    scalar path) and the compiled path those of ``offboard.harness.compiled.inputs.COMPILED_LAWS`` (every row).
-    Both model the filter ``kf`` or the true state, and the ideal actuators or the mixer (the compiled path also PX4's
-    attitude loops, which ``smc-attitude`` flies); a file asking for others (``actuators = "px4"``, PX4's allocator
-    behind a torque-level law; the ``kf-torque`` filter) is flown by the scalar path, which models them all."""
+    """The path that flies ``controller``'s runs: the file's engine, except that the compiled path flies the rows of
+    ``offboard.harness.compiled.inputs.COMPILED_LAWS`` (every row) with the filter ``kf`` or the true state, and
+    the ideal actuators or the mixer (and PX4's attitude loops, which ``smc-attitude`` flies); a file asking for
+    others (``actuators = "px4"``, PX4's allocator behind a torque-level law; the ``kf-torque`` filter) is flown by
+    the scalar path, which models them all."""
     if config.estimator not in ("truth", "kf") or config.actuators not in ("ideal", "mixer"):
         return "scalar"
     if config.engine == "compiled":
         from offboard.harness.compiled.inputs import COMPILED_LAWS  # loads numba: only for the compiled engine
 
         return "compiled" if controller in COMPILED_LAWS else "scalar"
-    from offboard.harness.batched import BATCHED_LAWS
-
-    return "batched" if config.engine == "batched" and controller in BATCHED_LAWS else "scalar"
+    return "scalar"
 
 
 def reference_feasibility(config: SweepConfig) -> Any:

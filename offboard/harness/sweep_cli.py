@@ -23,9 +23,9 @@ from offboard.harness import sweep
 from offboard.outputs import prepare_output_dir, write_atomic
 
 RESULTS = "results.csv"
-#: runs per Dask task by engine: enough to amortize a task's set-up (the batched path's arrays, the compiled path's
-#: reference rows), few enough to keep both workers busy to the end and to lose little to an interruption
-CHUNK = {"scalar": 10, "batched": 500, "compiled": 100}
+#: runs per Dask task by engine: enough to amortize a task's set-up (the compiled path's reference rows), few enough
+#: to keep both workers busy to the end and to lose little to an interruption
+CHUNK = {"scalar": 10, "compiled": 100}
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -52,7 +52,7 @@ def configure(p: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         metavar="K",
-        help="runs per Dask task (default: 10 scalar, 500 batched, 100 compiled)",
+        help="runs per Dask task (default: 10 scalar, 100 compiled)",
     )
     p.add_argument("--no-figures", action="store_true", help="no PNG figures")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (an existing sweep there is resumed)")

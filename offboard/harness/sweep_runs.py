@@ -1,4 +1,4 @@
-"""What the fast engines (batched, compiled) share to fly a chunk of a sweep at once: the chunk's runs drawn as the
+"""What the compiled engine needs to fly a chunk of a sweep at once: the chunk's runs drawn as the
 scalar path draws them one by one (``offboard.harness.sweep.run_one``), and the table's rows from their figures."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from offboard.harness import sweep
 
 @dataclass(frozen=True)
 class DrawnRuns:
-    """What a fast engine (batched, compiled) needs to fly ``runs`` of a sweep at once: each run's draws, true
+    """What the compiled engine needs to fly ``runs`` of a sweep at once: each run's draws, true
     vehicle and scenario, the nominal vehicle's law parameters, and the ``simulate`` keywords of the estimator (the
     sensor presets, their seeds and the controller's filter tuning with the filter)."""
 

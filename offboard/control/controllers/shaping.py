@@ -102,8 +102,8 @@ def cascade_swing_mode(vehicle: Vehicle, gains: CascadeGains | None = None) -> t
 class ReferenceShaper:
     """The shaped reference ``sum A_i ref(t - t_i)`` for every derivative order, from the reference samples given
     at the ticks so far (at most the shaper's length back kept), linearly interpolated between ticks; before the
-    first tick the first sample holds (a flight starts at rest). Shared by :class:`ShapedCascade` and the batched
-    sweep path (one reference for all runs: shaped once per tick)."""
+    first tick the first sample holds (a flight starts at rest). Shared by :class:`ShapedCascade` and the compiled
+    sweep engine (one reference for all runs: shaped once per tick)."""
 
     def __init__(self, amplitudes: Sequence[float], delays: Sequence[float]) -> None:
         self.amplitudes, self.delays = tuple(amplitudes), tuple(delays)

@@ -1,6 +1,5 @@
 """The compiled sweep engine (``engine = "compiled"``): each run of a sweep flown by machine code (numba), the
-same equations, in the same order, as the scalar path (``offboard.harness.sim.run``) and the numpy batched path
-(``offboard.harness.batched``), one run after another.
+same equations, in the same order, as the scalar path (``offboard.harness.sim.run``), one run after another.
 
 - :mod:`.layout`: the shared vector layouts (the estimate, the reference), the JIT decorators every kernel uses and
   Python's ``min``, ``max``, ``math.hypot`` for kernels mirroring scalar Python;

@@ -1,6 +1,5 @@
 """The attitude-level sliding-mode law of a compiled run (the ``smc-attitude`` row):
-``offboard.control.smc_attitude.step`` for one run, the scalar law's expressions in its order (there is no numpy
-batched version of this law to mirror).
+``offboard.control.smc_attitude.step`` for one run, the scalar law's expressions in its order.
 
 The law commands a thrust and an attitude setpoint, which PX4's attitude loops (:mod:`.px4_loops`) turn into the
 motors' wrench; it also reports the torques it expects the autopilot's rate loop to apply, which the driver gives

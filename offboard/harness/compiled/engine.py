@@ -1,16 +1,15 @@
 """One compiled run, and the sweep's rows for a chunk of runs (``engine = "compiled"``).
 
-:func:`fly_run` is ``offboard.harness.batched.simulate``'s loop for one run, as machine code: at each control tick
+:func:`fly_run` is ``offboard.harness.sim.run``'s loop for one run, as machine code: at each control tick
 the true state, the filter's records due and its estimate, the reference, the law, the command through the nominal
 motor lag into the filter, the gust, the sweep's figures, the mixer or PX4's attitude setpoint; then the plant's
 steps with the motors' lag (behind PX4's attitude P, rate PID and allocator for the attitude-level law), the drag,
-RK4, the cable's tension and the sensors sampling. The same order as the numpy path and the scalar path
+RK4, the cable's tension and the sensors sampling. The same order as the scalar path
 (``offboard.harness.sim.run``), so they agree (``tests/test_compiled_engine.py``, ``tests/test_compiled_attitude.py``).
 
 :func:`simulate` is the Python side: it builds each run's constants (:mod:`.inputs`), its sensor schedule
 (``offboard.harness.compiled.schedule``) and the shared reference rows, then flies the runs one after another.
-:func:`run_batch` gives the sweep's rows, as ``offboard.harness.batched.run_batch`` and ``sweep.run_one`` do: every
-row, ``smc-attitude`` included.
+:func:`run_batch` gives the sweep's rows, as ``sweep.run_one`` does: every row, ``smc-attitude`` included.
 """
 
 from __future__ import annotations
@@ -44,7 +43,7 @@ from offboard.harness.compiled.layout import (
     pure_kernel,
 )
 
-# ---- a run's figures (offboard.harness.batched.Figures, one run) --------------------------------------------------
+# ---- a run's figures (as offboard.harness.sweep.evaluate computes them from a logged run) --------------------
 FIG_PEAK, FIG_RESIDUAL, FIG_SQ, FIG_N, FIG_FINAL, FIG_EST_ERR, FIG_SLACK, FIG_FINITE, FIG_SATURATED, FIG_MIN_TENSION = (
     range(10)
 )
@@ -53,7 +52,7 @@ FIG_SIZE = 10
 #: law's 7 floats), the gust, the true state and the estimate, the lagged command, the motors' thrusts and commands,
 #: the sines and cosines of the state's attitude)
 WS_ROWS = 15
-#: the logged columns besides the state (``offboard.harness.batched.simulate``'s names)
+#: the logged columns besides the state (``simulate``'s names)
 LOG_NAMES = ("alpha", "e_Fx", "e_Fy", "e_z", "est_Fx0", "est_Fy0")
 
 
@@ -80,7 +79,7 @@ def _fuse_due(
     kf_f: np.ndarray,
     kf_n: np.ndarray,
 ) -> int:
-    """The filter's events of this tick, in the run's order (``offboard.harness.batched_sensors.schedule``): a
+    """The filter's events of this tick, in the run's order (``offboard.harness.compiled.schedule``): a
     record's fusion, its gyro's, or a block's advance; returns the index of the next tick's first event."""
     n_ev = ev.shape[0]
     while ev_i < n_ev and ev[ev_i, 0] == tick:
@@ -167,9 +166,9 @@ def fly_run(
     ws: np.ndarray,
     next_rec: np.ndarray,
 ) -> None:
-    """Fly one run (``offboard.harness.batched.simulate`` for one of its runs, ``sim.run`` for the attitude-level
-    law): ``ref`` / ``law_ref`` (ticks, 28) the reference rows for the figures and for the law (a shaped reference
-    for ``zv`` / ``zvd``, else the same array), ``law_code`` a ``laws.LAW_*`` or ``attitude_law.LAW_SMC_ATTITUDE``,
+    """Fly one run (``sim.run``'s loop, torque-level or attitude-level law): ``ref`` / ``law_ref`` (ticks, 28) the
+    reference rows for the figures and for the law (a shaped reference for ``zv`` / ``zvd``, else the same array),
+    ``law_code`` a ``laws.LAW_*`` or ``attitude_law.LAW_SMC_ATTITUDE``,
     ``flat`` the controller's nominal flat constants (l, g, c), ``lag_tau`` the nominal motor time constant (s),
     ``actuators`` an ``inputs.ACT_*`` (the mixer's constants ``mix_c``; PX4's attitude path's ``px_c`` and its
     state ``px_s``, flown in place), the state ``x`` (18,) flown in place, the records (``rec_*``: per kind from
@@ -240,7 +239,7 @@ def fly_run(
             u[4 + i] = dist[i]
         if sat:
             saturated += 1.0
-        # the figures of the tick (offboard.harness.batched.Figures.tick)
+        # the figures of the tick (offboard.harness.sweep.evaluate's, accumulated)
         r1, r2, r3 = x[12], x[13], x[14]
         # the swing angle where it is logged or may be a new largest of the figures that take it (peak, then the
         # residual from residual_from): below 90 deg, tan^2 alpha = (r1^2 + r2^2) / r3^2 short of the largest's by
@@ -335,9 +334,10 @@ def simulate(
     law: str = "smc",
     rows: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> dict[str, Any]:
-    """``offboard.harness.batched.simulate`` with the compiled kernels (the same arguments and log: ``t``, ``x``
+    """Runs of ``offboard.harness.sim.run`` with the compiled kernels, many scenarios with their true vehicles (one
+    reference for all: the first's; each its own gust and initial state). The log: ``t``, ``x``
     (ticks, 18, B), the ``LOG_NAMES`` columns (ticks, B), ``saturated`` (s), ``slack_steps``, ``min_tension``, the
-    figures ``fig`` (B, ``FIG_SIZE``) and ``n_ticks``); the runs are flown one after another. ``law``: a row of
+    figures ``fig`` (B, ``FIG_SIZE``) and ``n_ticks``; the runs are flown one after another. ``law``: a row of
     ``inputs.COMPILED_LAWS``; ``smc-attitude`` flies with ``actuators = "px4-attitude"`` (``sim.run``'s PX4 attitude
     path), designed as the sweep designs it, and the log adds ``allocator_saturated`` (s: PX4's allocator left some
     torque unallocated; 0 with other actuators). ``rows``: the reference rows of ``inputs.reference_rows`` when the
@@ -375,7 +375,7 @@ def simulate(
     figs, allocator_saturated = np.empty((B, FIG_SIZE)), np.zeros(B)
     use_kf, act = estimator == "kf", cin.ACTUATORS[actuators]
     tuning = MeasuredTuning() if tuning is None else tuning
-    delay = 0.012  # the filter's fusion horizon behind the tick (BatchedMeasuredKalman's default, as batched flies it)
+    delay = 0.012  # the filter's fusion horizon behind the tick (MeasuredKalmanEstimator's default)
     kf_c = ckf.kf_constants(params.vehicle, tuning, load_sensor=load_sensor, delay_s=delay, rate_hz=1.0 / dt)
     sched = None
     for b in range(B):
@@ -470,8 +470,7 @@ def _flown_actuators(controller: str, nominal: Any, actuators: str) -> str:
 
 
 def run_batch(config: Any, controller: str, runs: list[int]) -> list[dict[str, Any]]:
-    """The sweep's rows for ``runs`` with the compiled engine: the rows ``offboard.harness.batched.run_batch`` and
-    ``offboard.harness.sweep.run_one`` give."""
+    """The sweep's rows for ``runs`` with the compiled engine: the rows ``offboard.harness.sweep.run_one`` gives."""
     from offboard.harness import sweep_runs
 
     drawn = sweep_runs.drawn_runs(config, controller, runs)

@@ -13,7 +13,6 @@ from typing import Any
 
 import numpy as np
 
-from offboard.harness.batched import BATCHED_LAWS
 from offboard.harness.compiled import attitude_law as cal
 from offboard.harness.compiled import laws as claws
 from offboard.harness.compiled import plant as cp
@@ -23,8 +22,8 @@ from offboard.harness.compiled.layout import REF_SIZE
 #: the actuator kinds of ``fly_run``: the command itself, the four-motor mixer, PX4's attitude path
 ACT_IDEAL, ACT_MIXER, ACT_PX4_ATTITUDE = 0, 1, 2
 ACTUATORS = {"ideal": ACT_IDEAL, "mixer": ACT_MIXER, "px4-attitude": ACT_PX4_ATTITUDE}
-#: the rows the compiled engine flies: the batched path's and the attitude-level law (through PX4's attitude loops)
-COMPILED_LAWS = (*BATCHED_LAWS, "smc-attitude")
+#: the rows the compiled engine flies: the torque-level laws and the attitude-level law (through PX4's attitude loops)
+COMPILED_LAWS = (*claws.TORQUE_LAWS, "smc-attitude")
 
 
 def check_law(law: str, actuators: str) -> None:
@@ -44,11 +43,11 @@ SHAPED_LAWS = ("zv", "zvd")
 
 def law_shaper(law: str, nominal: Any) -> Any:
     """The reference shaper in front of ``law`` on the ``nominal`` vehicle (``zv`` / ``zvd``), else None."""
-    from offboard.harness.batched import batched_law
+    from offboard.control.controllers import registry
 
     if law not in SHAPED_LAWS:
         return None
-    return batched_law(law, nominal, 1)[1]
+    return registry.make(law, nominal).shaper
 
 
 def law_arrays(
@@ -79,7 +78,7 @@ def actuator_arrays(kind: int, vehicle: Any, plant_dt: float, hover: float) -> t
 
 def reference_rows(reference: Any, shaper: Any, n_ticks: int, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """The reference sampled at every tick (ticks, 28), and the law's (shaped by ``shaper`` when given, once per
-    tick in order, as the batched path shapes it; else the same array)."""
+    tick in order, as the scalar ``ShapedCascade`` shapes it; else the same array)."""
     rows = np.empty((n_ticks, REF_SIZE))
     law = np.empty((n_ticks, REF_SIZE)) if shaper is not None else rows
     for tick in range(n_ticks):
@@ -110,7 +109,7 @@ def sweep_reference(config: Any, controller: str, scenario: Any, params: Any) ->
 
 
 def records(sched: Any) -> tuple[np.ndarray, ...]:
-    """A run's schedule (``offboard.harness.batched_sensors.RunSchedule``) as flat arrays: the first record of each
+    """A run's schedule (``offboard.harness.compiled.schedule.RunSchedule``) as flat arrays: the first record of each
     kind (5,), sampling steps, times, noise (n, 6) and values to fill (n, 6), the events and their payloads."""
     counts = [len(s) for s in sched.steps]
     start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)

@@ -1,26 +1,24 @@
 """The measured-input Kalman filter (``estimators.filters.measured_kf``) as numba kernels over one run's state.
 
-Over 500 lines because it follows ``estimators.filters.batched_kf`` (and through it ``measured_kf`` and
-``small_kf``) operation by operation, the same expressions in the same order, so that a run's estimate equals the
-numpy filter's to the last bits or nearly (``tests/test_compiled_kf.py``); split, the kernels would no longer read
-side by side with the numpy code they mirror.
+Over 500 lines because it follows ``estimators.filters.measured_kf`` (and through it ``small_kf``) operation by
+operation, the same expressions in the same order, so that a run's estimate equals the scalar filter's to far below
+1e-9 (``tests/test_compiled_engine.py``, the whole run against ``offboard.harness.sim.run``); split, the kernels
+would no longer read side by side with the code they mirror.
 
 A run's filter is three arrays: ``c``, the constants (:func:`kf_constants`: the nominal vehicle, the tuning, the
 gates, each channel's floor and ceiling; indices ``C_*``), and the state ``f`` (floats) and ``n`` (integers)
 (:func:`kf_new_state`; indices ``F_*``, ``N_*``): the eight blocks (kinematics x, y, z ``[p, v, b]``, tilt x, y
 ``[n, n']``, heading ``[psi, psi']``, swing x, y ``[a, a', e]``; each its time, mean and the upper triangle of its
-covariance, which is all the numpy code reads: it keeps one array for ``P[i][j]`` and ``P[j][i]``), the inputs,
+covariance, symmetric), the inputs,
 the adapted position wander, the channels' innovation statistics, the ring of pushed thrusts and the gate counters.
 
-What the numpy code does with masks over runs is a branch here (the gate's accept / refuse / reopen, a block not
-advanced for a step ``h <= 0``, the attitude records too close to pitched vertical to use, the series form of
-the pendulum model, a stale IMU). ``np.maximum`` / ``np.minimum`` become ``layout.maximum`` / ``layout.minimum``, which
-keep numpy's NaN (Python's ``max()`` would not). The one known difference: ``np.tan`` (numpy's own float64 tangent)
-and ``math.tan`` (libm, what the kernels call) may differ in the last bit.
+Each of the scalar filter's branches is a branch here (the gate's accept / refuse / reopen, a block not advanced for
+a step ``h <= 0``, the attitude records too close to pitched vertical to use, the series form of the pendulum
+model, a stale IMU). ``layout.maximum`` / ``layout.minimum`` keep a NaN (Python's ``max()`` would not).
 
 Units and frames as in ``estimators.filters.measured_kf``: SI, world NWU for the blocks, body FLU for the records'
-rates and specific force; times in s. As in the numpy filter, the records' timing (which are fused when, the
-block advances of a silent stream) is the caller's (``offboard.harness.batched_sensors.schedule``); a non-finite
+rates and specific force; times in s. The records' timing (which are fused when, the
+block advances of a silent stream) is the caller's (``offboard.harness.compiled.schedule``); a non-finite
 estimate is returned as it is (the run has diverged); the nominal vehicle carries a load.
 """
 
@@ -30,7 +28,6 @@ import math
 
 import numpy as np
 
-from estimators.filters.batched_kf import CHANNELS, GATE_STREAMS
 from estimators.filters.fusion import chi2_quantile
 from estimators.filters.measured_kf import MeasuredTuning, thrust_window
 from estimators.filters.measured_model import channel_floors
@@ -72,7 +69,7 @@ C_I_PHI, C_I_THETA, C_MASS_VEHICLE, C_G, C_L, C_M_OVER_M, C_K_L, C_K_G, C_K_C = 
 C_GATE1, C_GATE3, C_ADAPT_RATE, C_N_THRUST, C_DELAY, C_RATE_HZ = range(9, 15)
 # flags (1.0 / 0.0): load_sensor, tuning.fuse_gyro, thrust_explains_jumps, external_feedforward, tilt_command (the
 # delay, rate, load_sensor and fuse_gyro are the schedule's business; tilt_command is not read: the kernels, as
-# the numpy batched filter, always take the commanded tilt acceleration; kf_constants refuses a tuning without it)
+# the sweep's filter, always take the commanded tilt acceleration; kf_constants refuses a tuning without it)
 C_LOAD_SENSOR, C_FUSE_GYRO, C_THRUST_JUMPS, C_EXTERNAL_FF, C_TILT_COMMAND = range(15, 20)
 # the tuning's densities and rates (MeasuredTuning's fields of the same names)
 C_Q_V, C_Q_VZ, C_Q_V_NO_IMU, C_Q_B, C_Q_P_MIN, C_Q_P_MAX, C_WANDER_RATE = range(20, 27)
@@ -82,19 +79,35 @@ C_VAR_POS, C_VAR_VEL, C_VAR_BIAS, C_VAR_TILT, C_VAR_TILT_RATE = range(35, 40)
 C_VAR_PSI, C_VAR_PSI_RATE, C_VAR_SWING, C_VAR_SWING_RATE, C_VAR_E = range(40, 45)
 
 # ---- measurement channels (each a floor, a ceiling and two running statistics) and gate streams -------------------
+#: the measurement channels, each with its adapted noise (``MeasuredKalmanEstimator``'s ``_ch``), in the CH_* order
+CHANNELS = (
+    "pos_xy",
+    "vel_xy",
+    "pos_z",
+    "vel_z",
+    "tilt",
+    "tilt_rate",
+    "yaw",
+    "yaw_rate",
+    "acc",
+    "acc_in",
+    "load",
+    "gyro_rate",
+    "gyro_yaw_rate",
+)
 CH_POS_XY, CH_VEL_XY, CH_POS_Z, CH_VEL_Z, CH_TILT, CH_TILT_RATE, CH_YAW, CH_YAW_RATE = range(8)
 CH_ACC, CH_ACC_IN, CH_LOAD, CH_GYRO_RATE, CH_GYRO_YAW_RATE = range(8, 13)
-N_CHANNELS = len(CHANNELS)  # the CH_* indices follow batched_kf.CHANNELS
+N_CHANNELS = len(CHANNELS)
 C_FLOOR = 45  # N_CHANNELS floors (variances), then N_CHANNELS ceilings
 C_CEILING = C_FLOOR + N_CHANNELS
 C_SIZE = C_CEILING + N_CHANNELS
 
-#: the gate streams (``MeasuredKalmanEstimator.stats``'s ``gated_<stream>``), in the numpy filter's order
-STREAMS = GATE_STREAMS
+#: the gate streams (``MeasuredKalmanEstimator.stats``'s ``gated_<stream>``), in the S_* order
+STREAMS = ("pos", "z", "tilt", "psi", "acc", "acc_in", "load", "gyro")
 S_POS, S_Z, S_TILT, S_PSI, S_ACC, S_ACC_IN, S_LOAD, S_GYRO = range(8)
 
 # ---- the state f (floats) and n (integers) ------------------------------------------------------------------------
-#: the blocks, in the numpy filter's order (``batched_kf.BLOCKS``)
+#: the blocks, in the scalar filter's order (``measured_kf``'s ``_blocks``)
 KIN_X, KIN_Y, KIN_Z, TILT_X, TILT_Y, HEAD, SWING_X, SWING_Y = range(8)
 BLOCK_SIZE = 10  # a block's floats: its time, 3 means (2 used by the tilt and heading), 6 covariance entries
 B_T, B_X, B_P = 0, 1, 4  # offsets in a block: time (s), mean, covariance's upper triangle
@@ -181,7 +194,7 @@ def _pk(i: int, j: int) -> int:
     return i * 3 - (i * (i - 1)) // 2 + (j - i)
 
 
-# ---- small_kf over one run (batched_kf's module functions, the same expressions) ----------------------------------
+# ---- small_kf over one run (the same expressions) -----------------------------------------------------------------
 @_kernel
 def _kinematic_model(h, q_v, q_b, q_p):
     """``[p, v, b]`` over ``h`` s (``small_kf.kinematic_model``): Phi (9, row-major), Gamma (3), Q's upper triangle
@@ -229,7 +242,7 @@ def _pendulum_noise(h, w2, q_a):
 
 @_kernel
 def _predict3(f, o, phi, gam, u, q):
-    """``batched_kf._predict`` of three states in place (``small_kf._predict3`` / ``propagate_cov3``): the block at
+    """A block's prediction of three states in place (``small_kf._predict3`` / ``propagate_cov3``): the block at
     ``f[o:]`` moved by ``Phi``, ``Gamma u`` (when ``u != 0``) and ``Q`` (upper triangle)."""
     f00, f01, f02, f10, f11, f12, f20, f21, f22 = phi
     x, p = o + B_X, o + B_P
@@ -267,7 +280,7 @@ def _predict3(f, o, phi, gam, u, q):
 
 @_kernel
 def _predict2(f, o, h, q, g0, g1, u):
-    """``batched_kf._predict`` of two states in place with ``_rate_model(h, q)`` (the generic loop: Python's
+    """A block's prediction of two states in place with ``_rate_model(h, q)`` (the generic loop: Python's
     ``sum`` starts from 0, hence the ``0.0 +``, which turns a -0.0 into 0.0 as it does), and the input column
     ``[g0, g1]`` of ``u`` moving the mean only (none: ``u = 0``)."""
     h2 = h * h
@@ -289,7 +302,7 @@ def _predict2(f, o, h, q, g0, g1, u):
 
 @_kernel
 def _correct(f, o, three, ph0, ph1, ph2, y, s):
-    """``batched_kf._correct`` of an accepted update in place: ``x += ph y / s``, ``P -= ph ph^T / s`` with
+    """The correction of an accepted update in place: ``x += ph y / s``, ``P -= ph ph^T / s`` with
     ``ph = P h`` (taken before the update), innovation ``y`` and its variance ``s``; ``ph2`` unused for a
     two-state block (``three`` False)."""
     x, p = o + B_X, o + B_P
@@ -312,7 +325,7 @@ def _correct(f, o, three, ph0, ph1, ph2, y, s):
 
 @_kernel
 def _update_one(f, bi, i, z, r, gate):
-    """``batched_kf._update_one``: block ``bi``'s state ``i`` measured as ``z`` with variance ``r``, gated at
+    """One state's update: block ``bi``'s state ``i`` measured as ``z`` with variance ``r``, gated at
     ``gate`` (chi-square, 1 dof); True when accepted (else nothing changes)."""
     o = F_BLOCKS + BLOCK_SIZE * bi
     p = o + B_P
@@ -328,7 +341,7 @@ def _update_one(f, bi, i, z, r, gate):
 
 @_kernel
 def _update_row(f, bi, h0, h1, h2, z, r, gate):
-    """``batched_kf._update_row`` on three-state block ``bi``: ``z = h . x + noise(r)``, gated at ``gate``; True when
+    """A row's update on three-state block ``bi``: ``z = h . x + noise(r)``, gated at ``gate``; True when
     accepted."""
     o = F_BLOCKS + BLOCK_SIZE * bi
     x, p = o + B_X, o + B_P
@@ -368,7 +381,7 @@ def _learn(c, f, ch, y, hph, r, gate):
 @_kernel
 def _gated(c, n, stream):
     """A refused update of ``stream`` counted; True when its gate reopens (refused more than ``gate_reopen`` times in
-    a row: the update is then made ungated; the run counter stays, as in the numpy filter)."""
+    a row: the update is then made ungated; the run counter stays, as in the scalar filter)."""
     n[N_REFUSED + stream] += 1
     run = n[N_GATED_RUN + stream] + 1
     if run <= c[C_GATE_REOPEN]:
@@ -749,7 +762,7 @@ def _kin_mean(c, f, bi, t):
 
 @_kernel
 def _swing_mean(c, f, bi, t):
-    """A swing block's mean at ``t`` (s): its model's transition and input (``Phi x + Gamma u``, the numpy filter's
+    """A swing block's mean at ``t`` (s): its model's transition and input (``Phi x + Gamma u``, the scalar filter's
     three-state sums with the model's zeros and ones)."""
     o = F_BLOCKS + BLOCK_SIZE * bi
     tb = f[o + B_T]

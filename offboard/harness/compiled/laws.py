@@ -1,8 +1,7 @@
 """The controllers of a compiled run, one run at a time: the sliding-mode law ``offboard.control.smc.step`` (the
 ``smc`` row), the stock cascade (``cascade``, and ``zv`` / ``zvd`` behind a reference shaped beforehand by the
-driver), the swing-feedback cascade (``swing-feedback``) and LQR with its motor-lag states (``lqr``), with the
-expressions of the numpy batched path (``offboard.harness.batched_controllers``) in its order, which mirrors the
-scalar laws' (``offboard.control.controllers``).
+driver), the swing-feedback cascade (``swing-feedback``) and LQR with its motor-lag states (``lqr``), in the
+order of the scalar laws' expressions (``offboard.control.smc``, ``offboard.control.controllers``).
 
 Over 500 lines because it is the driver's one entry to the controllers: :func:`law_step` dispatches one tick to
 four laws that share the constants' and memories' layouts (the index constants the driver and the tests use), the
@@ -14,9 +13,9 @@ A law is a code (``LAW_*``), a float64 constants vector ``c`` (its indices named
 one control tick of one run. Frames and units as in the scalar path: model frame (world NWU, z up; body FLU), SI,
 rad; the estimate and the reference are the vectors of :mod:`.layout`.
 
-As the batched path: the baselines screen the estimate (a run whose estimate is not finite gets the nominal hover
+As the scalar laws: the baselines screen the estimate (a run whose estimate is not finite gets the nominal hover
 command and keeps its memory; each baseline's ``dt`` from its own last step time); ``smc`` does not screen (its
-``dt`` is the caller's; a NaN flows through its arithmetic, and into its memory, as numpy's does). Numpy's
+``dt`` is the caller's; a NaN flows through its arithmetic, and into its memory). Numpy's
 ``maximum`` / ``minimum`` (NaN propagates; between equal values the second argument) and ``clip`` (a value equal
 to a bound, or NaN, passes unchanged) are mirrored by ``layout.maximum``, ``layout.minimum`` and :func:`_clip`.
 """
@@ -24,13 +23,13 @@ to a bound, or NaN, passes unchanged) are mirrored by ``layout.maximum``, ``layo
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
 from estimators.model.flatness import flat_constants
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc
-from offboard.harness.batched_controllers import CascadeStep, LqrStep, SwingFeedbackStep
 from offboard.harness.compiled.layout import (
     EST_ALPHA_X,
     EST_ALPHA_X_RATE,
@@ -60,6 +59,9 @@ from offboard.harness.compiled.layout import (
 )
 
 LAW_SMC, LAW_CASCADE, LAW_SWING_FEEDBACK, LAW_LQR = 0, 1, 2, 3
+#: the sweep's rows these laws fly (the registry's controllers of these names; ``zv`` / ``zvd``: the cascade behind
+#: the reference shaper)
+TORQUE_LAWS = ("smc", "cascade", "zv", "zvd", "swing-feedback", "lqr")
 
 # ---- smc's constants (smc.ControllerParams of the nominal vehicle) ---------------------------------------------------
 # flat constants (m, m/s^2, m/s^4 per rad, 1/s^2), masses (kg), inertia (kg m^2), cos of the largest tilt
@@ -71,13 +73,13 @@ S_RHO_Z, S_RHO_PSI, S_RHO_F = 21, 22, 23
 S_SMOOTH, S_EPS_Z, S_EPS_PSI, S_EPS_F, S_LAG = 24, 25, 26, 27, 28
 # limits (N, N m); shared roll / pitch margin (1.0 or 0.0), a motor's largest thrust and margin at hover (N)
 S_THRUST_MIN, S_THRUST_MAX, S_TP_MAX, S_TT_MAX, S_TS_MAX, S_SHARED, S_F_MAX, S_DF_HOVER = range(29, 37)
-# reciprocals the law multiplies by where the batched law divides (1/c, 1/I_theta, 1/I_phi, 1/(M Mt); an ulp apart)
+# reciprocals the law multiplies by where the scalar law divides (1/c, 1/I_theta, 1/I_phi, 1/(M Mt); an ulp apart)
 S_INV_C, S_INV_IT, S_INV_IP, S_INV_M_MT = range(37, 41)
 SMC_SIZE = 41
 
 # ---- the baselines' constants: the hover thrust (N) first in both layouts ----------------------------------------
 BASE_HOVER = 0
-# the cascade (CascadeGains, batched_controllers.CascadeStep); C_TAN_TILT: tan of the tilt limit
+# the cascade (CascadeGains, controllers.cascade.CascadeController); C_TAN_TILT: tan of the tilt limit
 C_KP_XY, C_KP_Z, C_KV_XY, C_KI_XY, C_KD_XY, C_KV_Z, C_KI_Z, C_VEL_MAX_XY, C_VEL_MAX_Z = range(1, 10)
 C_TAN_TILT, C_KP_ATT, C_KP_YAW, C_KR_RP, C_KI_RP, C_KR_YAW, C_YAW_RATE_MAX = range(10, 17)
 # the nominal vehicle: cable (m), masses (kg), g / M (m/s^2 per kg), g, limits (N, N m), inertia (kg m^2)
@@ -92,7 +94,7 @@ Q_L, Q_G, Q_C, Q_W2, Q_MT, Q_IX, Q_IY, Q_IZ, Q_THRUST_MAX, Q_TP, Q_TT, Q_TS, Q_L
 LQR_SIZE = 14
 
 # ---- a run's memory --------------------------------------------------------------------------------------------------
-# smc (batched.smc_step's 8 rows): the error integrals (m s, rad s, m s, m s), the roll / pitch torques commanded at
+# smc (smc.step's memory): the error integrals (m s, rad s, m s, m s), the roll / pitch torques commanded at
 # the last tick and those modelled as delivered then (N m); then the actuation lag's factor 1 - exp(-dt / lag) and
 # the dt (s) it is for (NaN before the first: a control period is the same at every tick, so exp runs once a run)
 M_INT_Z, M_INT_PSI, M_INT_FX, M_INT_FY, M_TP_CMD, M_TT_CMD, M_TP_ACT, M_TT_ACT = range(8)
@@ -119,7 +121,7 @@ _SIZES = {LAW_SMC: SMC_SIZE, LAW_CASCADE: CASCADE_SIZE, LAW_SWING_FEEDBACK: SWIN
 
 # ---- Python side: the constants and the initial memory ------------------------------------------------------------
 def _smc_constants(params: smc.ControllerParams) -> np.ndarray:
-    """``smc.step``'s constants for ``params`` (the nominal vehicle's law), as ``batched.smc_step`` reads them."""
+    """``smc.step``'s constants for ``params`` (the nominal vehicle's law)."""
     v = params.vehicle
     k = flat_constants(v)
     G = params.gains
@@ -141,56 +143,66 @@ def _smc_constants(params: smc.ControllerParams) -> np.ndarray:
     return pack_constants(SMC_SIZE, values)
 
 
-def _cascade_constants(step: CascadeStep) -> np.ndarray:
-    """The cascade's constants from the batched law (its gains, the nominal vehicle's figures), and with a
-    :class:`SwingFeedbackStep` the applet's."""
-    G = step.gains
-    Ix, Iy, Iz = step.vehicle.inertia
-    tp, tt, ts = step.torque_max
-    values = {BASE_HOVER: step.hover, C_KP_XY: G.kp_xy, C_KP_Z: G.kp_z, C_KV_XY: G.kv_xy, C_KI_XY: G.ki_xy}
+def _cascade_constants(law: Any, vehicle: Vehicle) -> np.ndarray:
+    """The cascade's constants from the registry's controller ``law`` (its gains) on the nominal ``vehicle``, and
+    with a ``SwingFeedbackCascade`` the applet's."""
+    from offboard.control.controllers.swing_feedback import SwingFeedbackCascade
+
+    G = law.gains
+    Ix, Iy, Iz = vehicle.inertia
+    tp, tt, ts = vehicle.roll_pitch_torque_max, vehicle.roll_pitch_torque_max, vehicle.yaw_torque_max
+    acc_gain = vehicle.gravity / vehicle.mass_vehicle
+    values = {BASE_HOVER: vehicle.hover_thrust, C_KP_XY: G.kp_xy, C_KP_Z: G.kp_z, C_KV_XY: G.kv_xy, C_KI_XY: G.ki_xy}
     values.update({C_KD_XY: G.kd_xy, C_KV_Z: G.kv_z, C_KI_Z: G.ki_z, C_VEL_MAX_XY: G.vel_max_xy})
     values.update({C_VEL_MAX_Z: G.vel_max_z, C_TAN_TILT: math.tan(G.tilt_max), C_KP_ATT: G.kp_att})
     values.update({C_KP_YAW: G.kp_yaw, C_KR_RP: G.kr_rp, C_KI_RP: G.ki_rp, C_KR_YAW: G.kr_yaw})
-    values.update({C_YAW_RATE_MAX: G.yaw_rate_max, C_L: step.l, C_MT: step.mt, C_MLOAD: step.m})
-    values.update({C_ACC_GAIN: step.acc_gain, C_G: step.g, C_THRUST_MAX: step.thrust_max, C_TP: tp, C_TT: tt})
-    values.update({C_TS: ts, C_IX: Ix, C_IY: Iy, C_IZ: Iz})
-    if not isinstance(step, SwingFeedbackStep):
+    values.update({C_YAW_RATE_MAX: G.yaw_rate_max, C_L: vehicle.cable_length, C_MT: vehicle.total_mass})
+    values.update({C_MLOAD: vehicle.mass_load, C_ACC_GAIN: acc_gain, C_G: vehicle.gravity})
+    values.update({C_THRUST_MAX: vehicle.thrust_max, C_TP: tp, C_TT: tt, C_TS: ts, C_IX: Ix, C_IY: Iy, C_IZ: Iz})
+    if not isinstance(law, SwingFeedbackCascade):
         return pack_constants(CASCADE_SIZE, values)
-    # the applet's filter constant, computed as the batched law computes it (a Python float, the same bits)
-    values.update({C_VEL_P: step.vel_p, C_WP_POS_P: step.wp_pos_p, C_REST_RC: step.rest_tc / (2.0 * math.pi)})
-    values.update({C_DIST_MAX: step.dist_max})
+    # the applet's filter constant, computed as the scalar law computes it (a Python float, the same bits)
+    values.update({C_VEL_P: law.vel_p, C_WP_POS_P: law.wp_pos_p, C_REST_RC: law.rest_tc / (2.0 * math.pi)})
+    values.update({C_DIST_MAX: law.dist_max})
     return pack_constants(SWING_SIZE, values)
 
 
-def _lqr_constants(step: LqrStep) -> np.ndarray:
-    """LQR's constants from the batched law (the nominal vehicle's figures and the design's motor lag)."""
-    k = step.kf
-    Ix, Iy, Iz = step.vehicle.inertia
-    tp, tt, ts = step.torque_max
-    values = {BASE_HOVER: step.hover, Q_L: k.l, Q_G: k.g, Q_C: k.c, Q_W2: k.omega2, Q_MT: step.vehicle.total_mass}
-    values.update({Q_IX: Ix, Q_IY: Iy, Q_IZ: Iz, Q_THRUST_MAX: step.thrust_max, Q_TP: tp, Q_TT: tt, Q_TS: ts})
-    values.update({Q_LAG: step.lag_s})
+def _lqr_constants(law: Any) -> np.ndarray:
+    """LQR's constants from the registry's ``LqrController`` (the nominal vehicle's figures and the design's motor
+    lag)."""
+    k, v = law.kf, law.vehicle
+    Ix, Iy, Iz = v.inertia
+    tp, tt, ts = law.torque_max
+    values = {BASE_HOVER: v.hover_thrust, Q_L: k.l, Q_G: k.g, Q_C: k.c, Q_W2: k.omega2, Q_MT: v.total_mass}
+    values.update({Q_IX: Ix, Q_IY: Iy, Q_IZ: Iz, Q_THRUST_MAX: law.thrust_max, Q_TP: tp, Q_TT: tt, Q_TS: ts})
+    values.update({Q_LAG: law.lag_s})
     return pack_constants(LQR_SIZE, values)
 
 
 def law_constants(law: str, vehicle: Vehicle, params: smc.ControllerParams) -> tuple[int, np.ndarray, np.ndarray]:
     """(code, constants ``c``, LQR gain ``K``: 4 x 20 or 4 x 24, empty (0, 0) for the other laws) of a row of
-    ``offboard.harness.batched.BATCHED_LAWS`` flown by the nominal ``vehicle``; ``params``: ``smc``'s law
-    (``registry.smc_params(nominal)``, as ``batched.run_batch`` passes it). The baselines' figures come from the
-    batched laws ``batched.batched_law`` builds from the registry's controllers, so the paths cannot drift apart;
-    ``zv`` / ``zvd`` are the cascade (their shaped reference is the driver's)."""
-    from offboard.harness.batched import BATCHED_LAWS, batched_law
+    :data:`TORQUE_LAWS` flown by the nominal ``vehicle``; ``params``: ``smc``'s law (``registry.smc_params(nominal)``,
+    as the sweep passes it). The baselines' figures come from the registry's own controllers (gains, the applet's
+    constants, LQR's gain), so the paths cannot drift apart; ``zv`` / ``zvd`` are the cascade (their shaped
+    reference is the driver's)."""
+    from offboard.control.controllers import registry
+    from offboard.control.controllers.lqr import LqrController
+    from offboard.control.controllers.shaping import ShapedCascade
 
-    if law not in BATCHED_LAWS:
-        raise ValueError(f"the compiled laws are {', '.join(BATCHED_LAWS)}, not {law!r}")
+    if law not in TORQUE_LAWS:
+        raise ValueError(f"the compiled laws are {', '.join(TORQUE_LAWS)}, not {law!r}")
     no_gain = np.zeros((0, 0))
     if law == "smc":
         return LAW_SMC, _smc_constants(params), no_gain
-    step, _ = batched_law(law, vehicle, 1)
-    if isinstance(step, LqrStep):
-        return LAW_LQR, _lqr_constants(step), np.array(step.k, dtype=np.float64)
-    code = LAW_SWING_FEEDBACK if isinstance(step, SwingFeedbackStep) else LAW_CASCADE
-    return code, _cascade_constants(step), no_gain
+    scalar = registry.make(law, vehicle)
+    if isinstance(scalar, LqrController):
+        return LAW_LQR, _lqr_constants(scalar), np.array(scalar.K, dtype=np.float64)
+    if isinstance(scalar, ShapedCascade):
+        scalar = scalar.cascade
+    from offboard.control.controllers.swing_feedback import SwingFeedbackCascade
+
+    code = LAW_SWING_FEEDBACK if isinstance(scalar, SwingFeedbackCascade) else LAW_CASCADE
+    return code, _cascade_constants(scalar, vehicle), no_gain
 
 
 def law_memory(code: int, c: np.ndarray) -> np.ndarray:
@@ -224,7 +236,7 @@ def _clip(x: float, lo: float, hi: float) -> float:
 
 @inline_kernel
 def _switch(s: float, smooth: bool, eps: float) -> float:
-    """``batched_controllers._sw``: ``s / (|s| + eps)`` when ``smooth``, else ``np.sign(s)`` (+0 at +-0, NaN at
+    """``smc``'s switching function: ``s / (|s| + eps)`` when ``smooth``, else ``np.sign(s)`` (+0 at +-0, NaN at
     NaN)."""
     if smooth:
         return s / (abs(s) + eps)
@@ -253,7 +265,7 @@ def estimate_is_finite(est: np.ndarray) -> bool:
     return math.isfinite(sx + sy + rest)
 
 
-# ---- smc: offboard.control.smc.step as batched_controllers.smc_step writes it -------------------------------------
+# ---- smc: offboard.control.smc.step ---------------------------------------------------------------------------------
 @inline_kernel
 def _smc_height(
     c: np.ndarray, dt: float, int_prev: float, est: np.ndarray, ref: np.ndarray, smooth: bool
@@ -267,7 +279,7 @@ def _smc_height(
     n2 = cf * sp * st - cp * sf
     n3 = cf * ct
     # tan and cos of each swing angle from one sine / cosine pair (tan = sin / cos: an ulp from libm's tan), and
-    # products by 1 / |.| where the batched law divides by it: the same expressions to an ulp or so
+    # products by 1 / |.| where the scalar law divides by it: the same expressions to an ulp or so
     sy, cy = math.sin(est[EST_ALPHA_Y]), math.cos(est[EST_ALPHA_Y])
     sx, cx = math.sin(est[EST_ALPHA_X]), math.cos(est[EST_ALPHA_X])
     ty, tx = sy / cy, sx / cx
@@ -371,9 +383,9 @@ def _smc_saturate(c: np.ndarray, mem: np.ndarray, ints: tuple, acts: tuple, u_ou
 
 @pure_kernel
 def smc_step(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray, ref: np.ndarray, u_out: np.ndarray) -> bool:
-    """``batched_controllers.smc_step`` for one run: ``dt`` (s) since the previous tick (0 at the first), the
+    """``offboard.control.smc.step`` for one run: ``dt`` (s) since the previous tick (0 at the first), the
     command (thrust N, tau_phi, tau_theta, tau_psi N m, body FLU) into ``u_out``, ``mem`` (``M_*``) updated;
-    returns ``saturated``. No screening: a NaN in ``est`` gives NaN commands, as numpy's."""
+    returns ``saturated``. No screening: a NaN in ``est`` gives NaN commands."""
     smooth = c[S_SMOOTH] != 0.0
     thrust, int_z = _smc_height(c, dt, mem[M_INT_Z], est, ref, smooth)
     tau_psi, int_psi = _smc_yaw(c, dt, mem[M_INT_PSI], est, ref, smooth)
@@ -408,7 +420,7 @@ def smc_step(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray, ref: np
     return _smc_saturate(c, mem, (int_z, int_psi, int_fx, int_fy), (tp_act, tt_act), u_out)
 
 
-# ---- the cascade: batched_controllers.CascadeStep (and SwingFeedbackStep's offsets) --------------------------------
+# ---- the cascade: controllers.cascade.CascadeController (and SwingFeedbackCascade's offsets) ----------------------
 @pure_kernel
 def swing_offsets(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray) -> tuple[float, ...]:
     """``SwingFeedbackStep.offsets``: the applet's position (m), velocity (m/s) and acceleration (m/s^2) setpoint
@@ -545,7 +557,7 @@ def cascade_step(
     return sat or tilted
 
 
-# ---- LQR: batched_controllers.LqrStep ------------------------------------------------------------------------------
+# ---- LQR: controllers.lqr.LqrController -----------------------------------------------------------------------------
 @inline_kernel
 def _rot(cp: float, sp: float, a: float, b: float) -> tuple[float, float]:
     """The world vector (a, b) in the heading-aligned frame (rotation by -psi; ``cp``, ``sp``: cos, sin psi)."""
@@ -658,7 +670,7 @@ def law_step(
     """One control tick of one run: ``t`` (s); ``dt`` (s) since the previous tick (0 at the first; ``smc``'s,
     the baselines use their own last step time); ``est`` the estimate (``EST_*``), ``ref`` the reference row
     (``REF_*``); the command (thrust N, tau_phi, tau_theta, tau_psi N m, body FLU) into ``u_out`` (4,), ``mem``
-    updated in place. Returns ``saturated``, as the batched law's second result."""
+    updated in place. Returns ``saturated``."""
     if code == LAW_SMC:
         return smc_step(c, mem, dt, est, ref, u_out)
     if not estimate_is_finite(est):  # the baselines: hover, memory kept

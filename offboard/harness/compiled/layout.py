@@ -67,7 +67,7 @@ def inline_kernel(fn):  # type: ignore[no-untyped-def]
 
 @inline_kernel
 def wrap_angle(a: float) -> float:
-    """``estimators.model.frames.wrap_angle`` (and ``batched_kf.wrap_angles``): ``a`` (rad) into (-pi, pi], by
+    """``estimators.model.frames.wrap_angle`` : ``a`` (rad) into (-pi, pi], by
     ``fmod`` (exact; numba has no ``math.fmod``, ``np.fmod`` of floats is C's). ``fmod(w, 2 pi)`` of ``|w| < 2 pi``
     is ``w`` itself, so nearly every call needs no fmod at all; and LLVM, left a plain ``if`` around the call, makes
     it unconditional (it counts a call to a pure function as cheap to speculate), so the call sits behind a loop
@@ -226,7 +226,7 @@ REF_Z = 14
 REF_PSI = 21
 REF_SIZE = 28
 
-# ---- records and filter events (the codes of estimators.filters.batched_kf / offboard.harness.batched_sensors) ----
+# ---- records and filter events (the codes of the compiled schedule and filter) -------------------------------------
 POS, ATT, IMU, LOAD = 0, 1, 2, 3
 #: an IMU record's gyro, fused with the attitude records
 GYRO = 12

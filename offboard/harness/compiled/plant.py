@@ -262,7 +262,7 @@ def apply_drag(u: np.ndarray, x: np.ndarray, force: np.ndarray, torque: np.ndarr
 def measure(
     kind: int, x: np.ndarray, deriv: np.ndarray, g: float, bias: np.ndarray, e: np.ndarray, out: np.ndarray
 ) -> None:
-    """``SensorSuite._measure``'s values of a record of ``kind`` (``offboard.harness.batched_sensors.measure``) into
+    """``SensorSuite._measure``'s values of a record of ``kind`` into
     ``out``: the state ``x``, the plant derivative ``deriv`` at it (the accelerometer only), gravity ``g``, the
     accelerometer's bias (3,) and the record's noise ``e``. Fields as ``estimators.model.measurements`` after the
     time (position / velocity world NWU; attitude ZYX, body rates FLU; specific force body FLU; load angles)."""
@@ -327,7 +327,7 @@ def gust_at(c: np.ndarray, t: float, out: np.ndarray) -> None:
     out[3], out[4] = 0.3 * w * c[GUST_COS], 0.3 * w * c[GUST_SIN]
 
 
-# ---- the mixer (sim_bridge.inner.airframe.Mixer, as offboard.harness.batched_sensors.BatchMixer) -------------------
+# ---- the mixer (sim_bridge.inner.airframe.Mixer) --------------------------------------------------------------------
 MIX_A, MIX_C, MIX_FMAX, MIX_ALPHA = range(4)
 MIX_SIZE = 4
 
@@ -344,7 +344,7 @@ def mixer_constants(vehicle: Any, dt: float) -> np.ndarray:
 @pure_kernel
 def mixer_allocate(c: np.ndarray, thrust: float, tx: float, ty: float, tz: float, cmd: np.ndarray) -> None:
     """The four motors' commanded thrusts (N) into ``cmd`` for the wrench (thrust N, torques N m body FLU): roll /
-    pitch first, the collective shifted to fit, yaw with what is left (``BatchMixer.allocate``)."""
+    pitch first, the collective shifted to fit, yaw with what is left (``sim_bridge.inner.airframe.Mixer.allocate``)."""
     fmax, a = c[MIX_FMAX], c[MIX_A]
     base = 0.25 * (thrust if thrust < 4.0 * fmax else 4.0 * fmax)
     if base < 0.0:
@@ -407,7 +407,7 @@ def mixer_step(c: np.ndarray, f: np.ndarray, cmd: np.ndarray, u: np.ndarray) -> 
 # ---- the true state as the controller's input ------------------------------------------------------------------------
 @pure_kernel
 def truth_state(x: np.ndarray, l: float, g: float, c: float, out: np.ndarray) -> None:
-    """``estimators.model.flatness.truth_control_state`` (as ``offboard.harness.batched.truth_state``) into the
+    """``estimators.model.flatness.truth_control_state`` into the
     estimate vector ``out`` (``layout.EST_*``), with the controller's nominal flat constants ``l`` (m), ``g``
     (m/s^2), ``c``."""
     truth_state_at(x, math.sin(x[8]), math.cos(x[8]), l, g, c, out)

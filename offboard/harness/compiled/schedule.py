@@ -1,15 +1,16 @@
-"""A run's sensor records and the Kalman filter's events, compiled: :func:`offboard.harness.batched_sensors.schedule`
-as numba kernels, with the same arrays to the last bit and the run's generator left in the same state.
+"""A run's sensor records and the Kalman filter's events, compiled: when the scalar path's ``SensorSuite`` samples and
+delivers each record and when ``estimators.filters.measured_kf``'s queues fuse it, as numba kernels, with the run's
+generator left in the scalar path's state.
 
-It is one module over 500 lines because it is one replica of one Python function (``schedule`` with its
-``_DrySuite`` and ``_DryFilter``) whose parts share the same state arrays and are best read side by side with it;
-much of its length is kernel signatures, one argument per line.
+It is one module over 500 lines because it is one replica of the scalar sensors' timing and the filter's queues,
+whose parts share the same state arrays and are best read side by side; much of its length is kernel signatures,
+one argument per line. ``tests/schedule_reference.py`` is the same schedule in Python on the scalar
+``SensorSuite`` itself (the tests' oracle: the same arrays to the last bit).
 
 Before a run, from its generator alone: when each sensor samples (plant steps and times, s), the noise of each
 record (units of its fields), when each record is delivered, and which records the filter fuses at each control
-tick, in which order, with which block advances (the queues of ``estimators.filters.measured_kf``). The Python
-path does it with the scalar ``SensorSuite`` (``_DrySuite``) and a replica of the filter's queues (``_DryFilter``);
-the kernels here mirror both statement by statement:
+tick, in which order, with which block advances (the queues of ``estimators.filters.measured_kf``). The kernels
+mirror the scalar sensors and the filter's queues statement by statement:
 
 - the generator is the run's ``np.random.Generator`` itself, passed into the kernels: numba draws ``uniform``,
   ``random``, ``standard_normal`` and ``normal`` with numpy's own algorithms on the same bit generator, so the
@@ -41,11 +42,11 @@ remaining counts, on every call of ``_sensors_at`` and the heap operations, were
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from offboard.harness.batched_sensors import RunSchedule
 from offboard.harness.compiled.layout import (
     ADVANCE,
     ATT,
@@ -59,6 +60,21 @@ from offboard.harness.compiled.layout import (
     pure_kernel,
 )
 from sim_bridge.plant.sensors import preset_spec
+
+
+@dataclass
+class RunSchedule:
+    """One run's records: per kind (``layout.POS``, ``ATT``, ``IMU``, ``LOAD``) the sampling plant steps (int), times
+    (s) and noise (n, fields); the filter's events ``(tick, slot, code)`` with their ``payload`` (the record's number
+    of its kind, or a block advance's time); the accelerometer bias (3,)."""
+
+    steps: list[np.ndarray]
+    times: list[np.ndarray]
+    noise: list[np.ndarray]
+    events: np.ndarray
+    payload: np.ndarray
+    bias: np.ndarray
+
 
 # ---- the stream table: one row per sensor stream, in SensorSuite's order (position, attitude, imu[, load]) ----
 S_PERIOD = 0  # s, 1 / rate
@@ -285,7 +301,7 @@ def _sample(
             next_t[i] += period
 
 
-# ---- the filter's queues (batched_sensors._DryFilter) ----------------------------------------------------------
+# ---- the filter's queues (measured_kf's, times only) -------------------------------------------------------------
 
 
 @inline_kernel
@@ -538,7 +554,8 @@ def schedule(
     delay_s: float,
     fuse_gyro: bool,
 ) -> RunSchedule:
-    """``offboard.harness.batched_sensors.schedule`` compiled: the same ``RunSchedule``, array for array.
+    """The records and filter events of one run of ``offboard.harness.sim.run`` (same generator seed, preset, steps):
+    which records the scalar path's sensors sample when, with which noise, and when its filter fuses or drops each.
 
     preset: a preset name or a ``sim_bridge.plant.sensors.Preset``; vehicle: unused (the Python path's
     ``SensorSuite`` needs it for the values, which the schedule leaves out); seed: the run's generator seed."""
@@ -583,4 +600,4 @@ def schedule_rng(
     )
 
 
-__all__ = ["capacities", "schedule", "schedule_kernel", "schedule_rng", "stream_table"]
+__all__ = ["RunSchedule", "capacities", "schedule", "schedule_kernel", "schedule_rng", "stream_table"]
