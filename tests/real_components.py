@@ -46,3 +46,13 @@ def require_px4_sitl() -> Path:
     root = default_sitl_path()
     require("PX4 SITL", why_no_px4_sitl(root))
     return root
+
+
+def require_ardupilot_sitl() -> Path:
+    """The ArduPilot SITL folder (``sim_bridge.sitl.ardupilot_sitl.default_sitl_path``), or skip / fail saying why it
+    is unusable."""
+    from sim_bridge.sitl.ardupilot_sitl import default_sitl_path, why_no_ardupilot_sitl
+
+    root = default_sitl_path()
+    require("ArduPilot SITL", why_no_ardupilot_sitl(root))
+    return root

@@ -11,6 +11,13 @@ within ``max_tilt``.
 - body rates: the law's commanded rates (FLU -> FRD), clipped to ``max_rate``: feed-forward for an autopilot that
   reads them (mask ``attitude+rates``), logged otherwise (PX4 ignores them with mask ``attitude``).
 
+The tilt limit holds on what the autopilot does, not on one field (:func:`within_tilt`): the attitude's combined
+tilt ``hypot(phi, theta)`` (never below the true tilt ``acos(cos phi cos theta)``) is scaled back to ``max_tilt``,
+and the feed-forward rate that tilts further is cut to what the autopilot's own attitude loop would use to close the
+headroom left, ``K_att (max_tilt - tilt)``, the larger of the setpoint's and the vehicle's tilt. Why: ArduPilot
+adds the rates to its attitude target, so a clipped attitude with a 115 deg/s pitch-rate feed-forward still pitched
+it to 45.9 deg against a 30 deg limit (issue 38, ArduPilot SITL).
+
 There is no inversion of the autopilot's cascade here (that is the torque-level path's mapping): the law's gain
 design treats the autopilot's attitude loop as an uncertain lag instead (``docs/model.md`` §12).
 """
@@ -40,13 +47,20 @@ class AttitudeLawMapper(CommandMapper):
         if not isinstance(cmd, AttitudeCommand):
             raise TypeError("AttitudeLawMapper maps offboard.control.smc_attitude.AttitudeCommand only")
         c = self.config
-        mt = c.max_tilt
-        phi_sp, theta_sp = cmd.phi_sp, cmd.theta_sp
-        if abs(phi_sp) > mt or abs(theta_sp) > mt:
-            phi_sp, theta_sp = _clip(phi_sp, -mt, mt), _clip(theta_sp, -mt, mt)
-        q_ned = model_quaternion_to_ned(*euler_to_quaternion(phi_sp, theta_sp, cmd.psi_sp))
         rr = c.max_rate
-        rf = model_body_to_frd(_clip(cmd.p_c, -rr, rr), _clip(cmd.q_c, -rr, rr), _clip(cmd.r_c, -rr, rr))
+        k_att = 0.5 * (self.autopilot.attitude_p[0] + self.autopilot.attitude_p[1])
+        phi_sp, theta_sp, p_c, q_c = within_tilt(
+            cmd.phi_sp,
+            cmd.theta_sp,
+            _clip(cmd.p_c, -rr, rr),
+            _clip(cmd.q_c, -rr, rr),
+            est.phi,
+            est.theta,
+            c.max_tilt,
+            k_att,
+        )
+        q_ned = model_quaternion_to_ned(*euler_to_quaternion(phi_sp, theta_sp, cmd.psi_sp))
+        rf = model_body_to_frd(p_c, q_c, _clip(cmd.r_c, -rr, rr))
         u = self.thrust_norm(cmd.thrust)
         ap = self.autopilot
         if ap.flavour == "ardupilot" and ap.angle_boost:
@@ -56,7 +70,31 @@ class AttitudeLawMapper(CommandMapper):
         return AttitudeTarget(q_ned, rf[0], rf[1], rf[2], self._slew_thrust(u, dt), self._mask)
 
 
-__all__ = ["AttitudeLawMapper", "inner_loop_of"]
+__all__ = ["AttitudeLawMapper", "inner_loop_of", "within_tilt"]
+
+
+def within_tilt(
+    phi: float, theta: float, p: float, q: float, phi_now: float, theta_now: float, max_tilt: float, k_att: float
+) -> tuple[float, float, float, float]:
+    """The attitude setpoint (roll ``phi``, pitch ``theta``, rad) and the roll / pitch rate feed-forward (``p``,
+    ``q``, rad/s, model body axes) kept within ``max_tilt`` (rad) on what the autopilot does (module docstring):
+    the setpoint's ``hypot(phi, theta)`` scaled to at most ``max_tilt``; the rate's component that tilts further,
+    along the larger of the setpoint's and the vehicle's (``phi_now``, ``theta_now``) tilt, cut to
+    ``k_att (max_tilt - tilt)`` (``k_att``: the autopilot's attitude P gain, 1/s); the rest of the rate unchanged."""
+    tilt_sp = math.hypot(phi, theta)
+    if tilt_sp > max_tilt:
+        s = max_tilt / tilt_sp
+        phi, theta, tilt_sp = phi * s, theta * s, max_tilt
+    tilt_now = math.hypot(phi_now, theta_now)
+    dx, dy, tilt = (phi, theta, tilt_sp) if tilt_sp >= tilt_now else (phi_now, theta_now, tilt_now)
+    if tilt > 1e-6:
+        nx, ny = dx / tilt, dy / tilt
+        outward = p * nx + q * ny
+        allowed = k_att * max(0.0, max_tilt - tilt)
+        if outward > allowed:
+            cut = outward - allowed
+            p, q = p - cut * nx, q - cut * ny
+    return phi, theta, p, q
 
 
 def inner_loop_of(autopilot: AutopilotModel) -> InnerLoop:
