@@ -33,6 +33,21 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "offboard.harness.sweep_cli",
         "Monte Carlo robustness of the controllers over parameter distributions (Dask)",
     ),
+    "export": ("offboard.logs.export_cli", "write a run folder's time series as CSV"),
+}
+
+#: subcommand -> the example line its ``--help`` ends with (run as written from a source tree)
+EXAMPLES: dict[str, str] = {
+    "sim": "slung sim --scenario paper --out runs/paper",
+    "bench": "slung bench --repeat 2000 --runs 1",
+    "emulate": "slung emulate --flavor px4 --lockstep",
+    "fly": "slung fly --connect udpin:0.0.0.0:14540 --scenario hover --duration 20 --out runs/hover",
+    "px4-hil": "slung px4-hil --px4 --load-sensor 100",
+    "demo": "slung demo --seed 3 --out runs/demo",
+    "replay": "slung replay runs/demo/flight.tlog",
+    "compare": "slung compare --scenario rest-to-rest --out runs/compare",
+    "sweep": "slung sweep --runs 100 --workers 2 --out runs/sweep",
+    "export": "slung export --csv runs/demo",
 }
 
 
@@ -94,7 +109,13 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
             if exc.name == module_name:
                 continue
             raise
-        p = sub.add_parser(name, help=help_text, description=help_text)
+        p = sub.add_parser(
+            name,
+            help=help_text,
+            description=help_text,
+            epilog=f"example:\n  {EXAMPLES[name]}",
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
         module.configure(p)
         p.set_defaults(_run=module.run)
     return parser

@@ -42,6 +42,7 @@ from offboard.control.reference_stop import StoppingReference
 from offboard.control.scenarios import PAPER_DISTURBANCE_START_S, make_scenario
 from offboard.harness import sim as sim_mod
 from offboard.harness.demo_cli import configure, run_demo
+from offboard.logs.timeseries_file import read_table
 from offboard.report import metrics as metrics_mod
 
 DURATION = 50.0
@@ -101,13 +102,6 @@ def wire_setpoints(tlog_path) -> list:
     return out
 
 
-def read_csv(path) -> dict[str, np.ndarray]:
-    with open(path, encoding="utf-8") as f:
-        names = f.readline().strip().split(",")
-    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    return {n: data[:, i] for i, n in enumerate(names)}
-
-
 @pytest.mark.parametrize(("flavor", "output"), [("px4", "attitude"), ("px4", "actuator"), ("ardupilot", "attitude")])
 def test_demo_flies_the_paper_scenario_like_sim(tmp_path, sim_runs, flavor: str, output: str) -> None:
     sim_m, sim_log = sim_runs["px4" if output == "actuator" else "mixer"]
@@ -121,9 +115,9 @@ def test_demo_flies_the_paper_scenario_like_sim(tmp_path, sim_runs, flavor: str,
     stop_s = StoppingReference(make_scenario("paper", duration=DURATION).reference, DURATION).stop_s
     assert stop_s > 2.0 and m["config"]["stop_after_s"] == pytest.approx(DURATION)
     assert m["settle"]["flown_s"] >= stop_s - 0.01
-    with open(folder / "timeseries_live.csv", encoding="utf-8") as f:
-        names = f.readline().strip().split(",")
-        last = dict(zip(names, (float(v) for v in f.readlines()[-1].split(",")), strict=True))
+    live = read_table(folder / "timeseries_live.slts")
+    assert live.complete
+    last = dict(zip(live.columns, live.data[-1].tolist(), strict=True))
     assert all(last[f"ref_f{a}{k}"] == 0.0 for a in "xy" for k in range(1, 7)), last
     assert m["duration_s"] == pytest.approx(DURATION, abs=0.05)
     ratios = {k: m["rms"][k] / sim_m["rms"][k] for k in SIGNALS}
@@ -140,7 +134,7 @@ def test_demo_flies_the_paper_scenario_like_sim(tmp_path, sim_runs, flavor: str,
     assert emu["sensors"] == "px4-typical"
     dist = emu["disturbance"]
     assert dist["origin_s"] == pytest.approx(m["loop"]["reference_start_s"], abs=1e-9)
-    ts = read_csv(folder / "timeseries.csv")
+    ts = read_table(folder / "timeseries.slts")
     t = ts["t"]
     # the disturbance the plant received, logged, is slung sim's at the same reference time
     sim_t = sim_log.column("t")

@@ -15,6 +15,7 @@ from offboard.cli import main
 from offboard.flight.fly_cli import configure as fly_configure
 from offboard.flight.fly_cli import fly
 from offboard.harness.demo_cli import EmulatorThread, free_udp_port
+from offboard.logs.timeseries_file import read_table
 
 
 def _hop(t_arrive: float, t_end: float) -> str:
@@ -104,14 +105,13 @@ def test_force_flies_it_and_the_watchdog_catches_what_the_check_predicted(tmp_pa
 
 
 def _last_swing_amplitude(folder: Path) -> tuple[float, float]:
-    """(t_ref, swing amplitude) of the flight's last tick, from timeseries_live.csv (the loop's own estimate)."""
-    import csv
+    """(t_ref, swing amplitude) of the flight's last tick, from timeseries_live.slts (the loop's own estimate)."""
     import math
 
     from estimators.model.vehicle import Vehicle
 
-    rows = list(csv.DictReader((folder / "timeseries_live.csv").open(encoding="utf-8")))
-    r = {k: float(v) for k, v in rows[-1].items() if k in ("t_ref",) or k.startswith("est_alpha")}
+    live = read_table(folder / "timeseries_live.slts")
+    r = {k: float(live[k][-1]) for k in live.columns if k in ("t_ref",) or k.startswith("est_alpha")}
     v = Vehicle()
     w2 = v.gravity / v.cable_length  # written out here, an oracle independent of estimators.model.cable.swing_amplitude
     amp = math.sqrt(

@@ -23,6 +23,7 @@ import pytest
 from real_components import require_px4_sitl
 
 from estimators.filters.measured_kf import KINDS, acceptance
+from offboard.logs.timeseries_file import read_table
 from sim_bridge.sitl.px4_sitl import Px4Sitl
 from sim_bridge.sitl.px4_ulog import read_px4_ulog
 
@@ -54,7 +55,7 @@ def test_px4_telemetry_is_accepted_and_followed(tmp_path: Path) -> None:
     assert all(stats["records_" + k] >= 200 for k in KINDS if k != "load"), stats
     assert min(acc.values()) >= 0.95, acc
     # the estimate against EKF2 (what LOCAL_POSITION_NED carries) and the truth, over the ticks flown
-    d = np.genfromtxt(out / "timeseries_live.csv", delimiter=",", names=True)
+    d = read_table(out / "timeseries_live.slts")
     t = d["t_vehicle"]
     assert t[-1] - t[0] >= 3.0, proc.stderr[-1000:]
     log = read_px4_ulog(sitl.ulogs()[-1])

@@ -31,6 +31,7 @@ import pytest
 from real_components import require_px4_sitl
 
 from estimators.model.vehicle import load_vehicle
+from offboard.logs.timeseries_file import read_table
 from sim_bridge.sitl.px4_hil import HIL_MODEL, Px4HilServer, hil_params
 from sim_bridge.sitl.px4_sitl import Px4Sitl
 
@@ -77,7 +78,7 @@ def flight(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFact
 def _control_window(out: Path) -> tuple[np.ndarray, np.ndarray]:
     """slung's live time series and the simulator's truth rows over the time under offboard control (PX4's clock is
     the simulator's: lockstep)."""
-    live = np.genfromtxt(out / "fly" / "timeseries_live.csv", delimiter=",", names=True)
+    live = read_table(out / "fly" / "timeseries_live.slts")
     truth = np.genfromtxt(out / "truth.csv", delimiter=",", names=True)
     t0, t1 = live["t_vehicle"][0], live["t_vehicle"][-1]
     keep = (truth["t_s"] >= t0) & (truth["t_s"] <= t1)

@@ -46,6 +46,7 @@ import pytest
 from real_components import require_px4_sitl
 
 from estimators.model.frames import model_to_ned_vector
+from offboard.logs.timeseries_file import read_table
 from sim_bridge.sitl.px4_sitl import Px4Sitl
 from sim_bridge.sitl.px4_ulog import NAV_STATE, Px4FlightLog, flight_quality, read_px4_ulog
 
@@ -101,7 +102,7 @@ class Flight:
         return json.loads((self.out / "fly" / "events.json").read_text())
 
     def ticks(self) -> np.ndarray:
-        return np.genfromtxt(self.out / "fly" / "timeseries_live.csv", delimiter=",", names=True)
+        return read_table(self.out / "fly" / "timeseries_live.slts")
 
 
 def _fly(

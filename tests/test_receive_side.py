@@ -21,6 +21,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from offboard.flight.link.connection import READ_BUDGET, MavConnection
 from offboard.flight.loop import LIVE_COL
+from offboard.logs.timeseries_file import read_table
 
 
 def _udp() -> socket.socket:
@@ -139,7 +140,7 @@ def test_two_thousand_foreign_source_ports_leave_the_loop_rate_within_ten_percen
         th.join(60.0)
     assert m["flight"]["ended_by"] == "completed", m["flight"]
     assert m["link"]["foreign_datagrams"] >= 1500  # (some may be lost in a full socket buffer)
-    rows = np.loadtxt(folder / "timeseries_live.csv", delimiter=",", skiprows=1)
+    rows = read_table(folder / "timeseries_live.slts").data
     t = rows[:, LIVE_COL["t_local"]]
     # the rate over 1 s before the flood and over 1 s after it (pymavlink alone kept answering the 2 000 ports
     # for the rest of the flight: 250 -> 115 Hz "for good")

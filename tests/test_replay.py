@@ -4,7 +4,6 @@ its "what is missing" reports, robustness to damaged logs, exit codes."""
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 from pathlib import Path
 
@@ -19,6 +18,7 @@ from offboard.flight.fly_cli import fly
 from offboard.harness.demo_cli import EmulatorThread, free_udp_port
 from offboard.logs import replay as rp
 from offboard.logs.estimate_columns import INNOVATION_COLUMNS, SIGMA_COLUMNS
+from offboard.logs.timeseries_file import read_table
 from offboard.logs.tlog import TlogReader
 
 
@@ -27,11 +27,10 @@ def _replay_cli(tlog: Path, out: Path, *extra: str) -> tuple[int, dict]:
     return code, json.loads((out / "metrics.json").read_text())
 
 
-def _csv_columns(path: Path) -> dict[str, np.ndarray]:
-    with open(path, encoding="utf-8") as fh:
-        rows = list(csv.reader(fh))
-    data = np.array([[float(v) for v in r] for r in rows[1:]]).reshape(-1, len(rows[0]))  # a flight of 0 ticks too
-    return {name: data[:, i] for i, name in enumerate(rows[0])}
+def _columns(path: Path) -> dict[str, np.ndarray]:
+    """The columns of a run folder's time series (``offboard.logs.timeseries_file``)."""
+    table = read_table(path)
+    return {name: table.data[:, i] for i, name in enumerate(table.columns)}
 
 
 # ------------------------------------------------------------------------------------------ slung demo, exact ---
@@ -76,7 +75,7 @@ def demo_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
             + (["--vehicle", "px4-sih", "--scenario", "hover"] if mode == "sih" else [])
             + (["--external-feedforward"] if mode == "feedforward" else [])
         )
-        assert (d / "flight.tlog").is_file() and (d / "timeseries_live.csv").is_file()
+        assert (d / "flight.tlog").is_file() and (d / "timeseries_live.slts").is_file()
         out[name] = d
     return out
 
@@ -98,8 +97,8 @@ def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
     flavor, output, _ = run_name.split("-")
     code, m = _replay_cli(run / "flight.tlog", tmp_path / "r")
     assert code == 0
-    live = _csv_columns(run / "timeseries_live.csv")
-    rep = _csv_columns(tmp_path / "r" / "timeseries.csv")
+    live = _columns(run / "timeseries_live.slts")
+    rep = _columns(tmp_path / "r" / "timeseries.slts")
     n = len(live["t_vehicle"])
     # normally ~375 ticks; on a heavily loaded machine the lockstep emulator's grace timeout can advance the
     # vehicle without the loop, and the 1.5 s flight has far fewer ticks: still every one must replay exactly
@@ -160,8 +159,8 @@ def test_replay_reproduces_an_attitude_level_law_flight(demo_runs: dict[str, Pat
     assert live_m["config"]["law"] == "attitude"
     code, m = _replay_cli(run / "flight.tlog", tmp_path / "r", "--vehicle", "px4-sih")
     assert code == 0
-    live = _csv_columns(run / "timeseries_live.csv")
-    rep = _csv_columns(tmp_path / "r" / "timeseries.csv")
+    live = _columns(run / "timeseries_live.slts")
+    rep = _columns(tmp_path / "r" / "timeseries.slts")
     n = len(live["t_vehicle"])
     assert n >= 5 and len(rep["t"]) == n
     for a, b in (("cmd_thrust", "cmd_thrust"), ("sp_q_x", "sp1"), ("sp_q_y", "sp2"), ("sp_thrust", "sp7")):
@@ -194,8 +193,8 @@ def test_replay_of_slung_demo_from_the_tlog_alone(demo_runs: dict[str, Path], tm
     run = demo_runs["px4-attitude-lockstep"]
     code, m = _replay_cli(run / "flight.tlog", tmp_path / "r", "--no-live-log")
     assert code == 0
-    live = _csv_columns(run / "timeseries_live.csv")
-    rep = _csv_columns(tmp_path / "r" / "timeseries.csv")
+    live = _columns(run / "timeseries_live.slts")
+    rep = _columns(tmp_path / "r" / "timeseries.slts")
     assert m["live_agreement"] is None
     assert m["setpoint_agreement"]["float32_identical"] == len(live["t_vehicle"])
     np.testing.assert_array_equal(rep["t_ref"], live["t_ref"])
@@ -249,7 +248,7 @@ def test_offboard_flight_with_an_unknown_reference_runs_the_estimator_only(tmp_p
     assert code == 0
     assert m["estimation"]["ticks"] == len(live_rows) and m["estimation"]["tick_source"] == "logged setpoints"
     assert m["tracking"] is None and any("reference" in n for n in m["estimation"]["notes"])
-    ts = _csv_columns(tmp_path / "r" / "timeseries.csv")
+    ts = _columns(tmp_path / "r" / "timeseries.slts")
     assert np.all(np.isnan(ts["sp_thrust"])) and np.all(np.isfinite(ts["log_thrust"]))
 
 
@@ -342,7 +341,7 @@ def test_unusable_logs_get_a_report_and_exit_code_3(
     assert code == 3
     assert m["replayed"] is False and any(reason in r for r in m["reasons"])
     assert reason in capsys.readouterr().out
-    assert not (tmp_path / "r" / "timeseries.csv").exists()
+    assert not (tmp_path / "r" / "timeseries.slts").exists()
 
 
 def test_mavlink1_log_replays(tmp_path: Path) -> None:
@@ -361,7 +360,7 @@ def test_time_window(tmp_path: Path) -> None:
     path.write_bytes(flight_log(LogSpec(seconds=3.0)))  # vehicle time 12 .. 15 s
     code, m = _replay_cli(path, tmp_path / "r", "--from", "13", "--to", "14")
     assert code == 0 and m["config"]["from_s"] == 13.0
-    t = _csv_columns(tmp_path / "r" / "timeseries.csv")["t"]
+    t = _columns(tmp_path / "r" / "timeseries.slts")["t"]
     assert t.min() >= 13.0 and t.max() <= 14.0 and len(t) > 200
 
 
@@ -406,7 +405,7 @@ def test_estimator_runs_only_while_the_vehicle_reports_itself_in_the_air(tmp_pat
     path.write_bytes(flight_log(LogSpec(seconds=2.5, landed_until_s=1.0)))  # vehicle time 12 .. 14.5 s
     code, m = _replay_cli(path, tmp_path / "r", "--no-figures")
     assert code == 0 and m["estimation"]["airborne_only"] and m["estimation"]["filter_starts"] == 1
-    t = _csv_columns(tmp_path / "r" / "timeseries.csv")["t"]
+    t = _columns(tmp_path / "r" / "timeseries.slts")["t"]
     assert 13.0 <= t.min() <= 13.25 and t.max() > 14.4
 
 
@@ -416,7 +415,7 @@ def test_a_reboot_in_the_log_restarts_the_estimator(tmp_path: Path) -> None:
     code, m = _replay_cli(path, tmp_path / "r", "--no-figures")
     assert code == 0
     assert m["log"]["boots"] == 2 and any("reboot" in s for s in m["log"]["missing"])
-    t = _csv_columns(tmp_path / "r" / "timeseries.csv")["t"]
+    t = _columns(tmp_path / "r" / "timeseries.slts")["t"]
     assert ((t > 30.0) & (t < 31.6)).sum() > 300 and ((t > 5.0) & (t < 6.6)).sum() > 300
     assert m["estimation"]["all_finite"] and m["estimation"]["alpha_x_vs_sensor"]["rms"] < 0.02
 
@@ -447,7 +446,7 @@ def test_replay_of_a_trajectory_file_flight_uses_the_file_the_run_recorded(tmp_p
     assert m["config"]["trajectory"] == str(traj.resolve())
     code, r = _replay_cli(folder / "flight.tlog", tmp_path / "r")
     assert code == 0
-    n = len(_csv_columns(folder / "timeseries_live.csv")["t_vehicle"])
+    n = len(_columns(folder / "timeseries_live.slts")["t_vehicle"])
     assert n > 700  # 3 s at 250 Hz, the duration the file gives
     assert r["live_agreement"]["setpoint_identical"] == n
     assert r["setpoint_agreement"]["float32_identical"] == n

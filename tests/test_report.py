@@ -26,6 +26,8 @@ import pytest
 from cdp_browser import Browser, chromium_path
 from real_components import require
 
+from offboard.logs.timeseries_file import read_table
+
 ROOT = Path(__file__).resolve().parents[1]
 #: the piped demo of this module flies the paper scenario's first seconds (then its smooth stop and the settle)
 DEMO_DURATION_S = 3.0
@@ -177,7 +179,7 @@ def test_report_files_get_the_users_umask_like_the_tlog(demo_piped) -> None:
     os.umask(mask)
     want = 0o666 & ~mask
     assert (out / "flight.tlog").stat().st_mode & 0o777 == want
-    for name in ("report.html", "metrics.json", "events.json", "timeseries.csv", "fig05_tracking.png"):
+    for name in ("report.html", "metrics.json", "events.json", "timeseries.slts", "fig05_tracking.png"):
         assert (out / name).stat().st_mode & 0o777 == want, name
 
 
@@ -268,9 +270,8 @@ def test_report_html_draws_the_filters_band_and_its_innovations(demo_piped) -> N
 
     assert demo_piped["rc"] == 0, demo_piped["stderr"][-2000:]
     out: Path = demo_piped["out"]
-    with open(out / "timeseries_live.csv", encoding="utf-8") as fh:
-        header = fh.readline().strip().split(",")
-    data = np.loadtxt(out / "timeseries_live.csv", delimiter=",", skiprows=1)
+    table = read_table(out / "timeseries_live.slts")
+    header, data = list(table.columns), table.data
     m = json.loads((out / "metrics.json").read_text())
     # the report is the reference's span; the ticks after it (the smooth stop of the 3 s reference, still climbing
     # and turning at its end, then the settle) are reported apart (metrics.json "settle")
@@ -378,7 +379,7 @@ def test_flight_figures_drop_the_empty_nees_panel_and_show_setpoint_against_achi
     # computed here independently of estimators.model.frames; what was achieved is the emulator's true attitude
     from offboard.flight.loop import LIVE_COL
 
-    live = np.loadtxt(demo_piped["out"] / "timeseries_live.csv", delimiter=",", skiprows=1)
+    live = read_table(demo_piped["out"] / "timeseries_live.slts").data
     live = live[live[:, LIVE_COL["t_ref"]] <= DEMO_DURATION_S + 1e-9]  # the figures are the reference's span
     w, x, y, z = (live[:, LIVE_COL[f"sp{i}"]] for i in range(4))
     np.testing.assert_allclose(roll_sent, np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)), atol=1e-9)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from offboard.cli import main
+from offboard.logs.timeseries_file import read_table
 from offboard.report.metrics import PAPER_TABLE2
 
 
@@ -56,7 +57,7 @@ def test_paper_scenario_beats_table2_and_writes_the_report(paper_sign: tuple[Pat
     assert m["max"]["alpha"] < 0.3
     assert m["cable"]["slack_steps"] == 0
     # the time series and the figures exist and hold what they claim
-    ts = np.genfromtxt(out / "timeseries.csv", delimiter=",", names=True)
+    ts = read_table(out / "timeseries.slts")
     assert ts["t"][-1] == pytest.approx(50.0) and np.all(np.isfinite(ts["alpha"]))
     assert abs(ts["Fx_ref"]).max() == pytest.approx(0.75, abs=0.01)  # figure-eight 1.5 m wide
     for fig in (
@@ -76,7 +77,7 @@ def test_paper_scenario_beats_table2_and_writes_the_report(paper_sign: tuple[Pat
 
 def test_disturbances_start_at_25s_and_are_bounded(paper_sign: tuple[Path, dict]) -> None:
     out, _ = paper_sign
-    ts = np.genfromtxt(out / "timeseries.csv", delimiter=",", names=True)
+    ts = read_table(out / "timeseries.slts")
     before = ts["t"] < 25.0
     for ch in ("dist_fx", "dist_fy", "dist_fz"):
         assert np.all(ts[ch][before] == 0.0)
@@ -130,8 +131,8 @@ def test_same_seed_same_result_other_seed_other_disturbance(tmp_path: Path) -> N
 
 
 def _timeseries(path: Path) -> tuple[list[str], np.ndarray]:
-    lines = path.read_text(encoding="utf-8").splitlines()
-    return lines[0].split(","), np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]])
+    table = read_table(path)
+    return list(table.columns), table.data
 
 
 def test_external_feedforward_acts_from_the_first_disturbance_on(tmp_path: Path) -> None:
@@ -145,7 +146,7 @@ def test_external_feedforward_acts_from_the_first_disturbance_on(tmp_path: Path)
         args = ["sim", "--scenario", "paper", "--estimator", "kf", "--duration", "26", "--control-rate", "250"]
         assert main([*args, *(["--external-feedforward"] if ff else []), "--no-figures", "--out", str(out)]) == 0
         assert json.loads((out / "metrics.json").read_text())["config"]["external_feedforward"] is ff
-        runs.append(_timeseries(out / "timeseries.csv"))
+        runs.append(_timeseries(out / "timeseries.slts"))
     (names, on), (_, off) = runs
     t = on[:, names.index("t")]
     differs = np.any(on != off, axis=1)

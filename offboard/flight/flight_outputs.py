@@ -1,14 +1,14 @@
-"""What ``slung fly`` writes after a flight (``offboard.flight.fly_cli``): the live tick log (``timeseries_live.csv``),
-``events.json``, and the flight turned into the ``slung sim`` run log (:class:`~offboard.logs.runlog.SimLog`) so
-that ``metrics.json``, ``timeseries.csv``, the figures and ``report.html`` are the simulation's. The report side
-(``offboard.report``) is imported inside the functions, after the flight. Model frame, SI units, radians."""
+"""What ``slung fly`` writes after a flight (``offboard.flight.fly_cli``): the live tick log (``timeseries_live.slts``,
+streamed during the flight and rewritten whole here), ``events.json``, and the flight turned into the ``slung sim``
+run log (:class:`~offboard.logs.runlog.SimLog`) so that ``metrics.json``, ``timeseries.slts``, the figures and
+``report.html`` are the simulation's. The report side (``offboard.report``) is imported inside the functions, after
+the flight. Model frame, SI units, radians."""
 
 from __future__ import annotations
 
 import argparse
 import contextlib
 import dataclasses
-import io
 import math
 from pathlib import Path
 from typing import Any
@@ -27,7 +27,8 @@ from offboard.flight.loop import (
 from offboard.flight.supervisor import exit_code
 from offboard.logs.estimate_columns import SIGMA_COLUMNS
 from offboard.logs.runlog import COL, LOG_COLUMNS, Scenario, SimConfig, SimLog
-from offboard.outputs import OutputFailures, write_json_atomic, write_text_atomic
+from offboard.logs.timeseries_file import LIVE_LOG_NAME, write_table
+from offboard.outputs import OutputFailures, write_json_atomic
 
 
 def settle_summary(rows: np.ndarray, result: FlightResult, vehicle: Vehicle) -> dict[str, Any]:
@@ -181,11 +182,11 @@ def write_flight_outputs(
     feasibility: dict[str, Any] | None = None,
     on_log: Any = None,
 ) -> dict[str, Any]:
-    """events.json, metrics.json, timeseries.csv and figures, timeseries_live.csv: the small files first, so that a
-    full disk leaves the flight's result and events behind. An output that cannot be written is warned about as it
-    stops and listed in ``metrics.json``'s ``outputs.failed`` (rewritten once at the end if anything failed, if it
-    can be), never raised: the flight's result is the flight's. ``estimator_config``: the ``load_sensor`` and
-    ``delay_s`` the filter was built with (recorded in ``config`` for ``slung replay``)."""
+    """events.json, metrics.json, timeseries.slts and figures, then timeseries_live.slts rewritten whole: the small
+    files first, so that a full disk leaves the flight's result and events behind. An output that cannot be written is
+    warned about as it stops and listed in ``metrics.json``'s ``outputs.failed`` (rewritten once at the end if
+    anything failed, if it can be), never raised: the flight's result is the flight's. ``estimator_config``: the
+    ``load_sensor`` and ``delay_s`` the filter was built with (recorded in ``config`` for ``slung replay``)."""
     from offboard.report import report
 
     rows = np.asarray(result.rows, dtype=float).reshape(-1, len(LIVE_COLUMNS))
@@ -304,7 +305,7 @@ def write_flight_outputs(
     outputs.attempt("metrics.json", lambda: write_json_atomic(out_dir / "metrics.json", m))
     if len(rows) >= 2:  # then timeseries.csv and the figures (the report writes metrics.json again, the same)
         outputs.attempt(
-            "timeseries.csv or the report's figures",
+            "timeseries.slts or the report's figures",
             lambda: report.write_report(
                 log,
                 m,
@@ -317,12 +318,9 @@ def write_flight_outputs(
             ),
         )
 
-    def write_live() -> None:
-        buf = io.StringIO()
-        np.savetxt(buf, rows, delimiter=",", header=",".join(LIVE_COLUMNS), comments="", fmt="%.17g")
-        write_text_atomic(out_dir / "timeseries_live.csv", buf.getvalue())
-
-    outputs.attempt("timeseries_live.csv", write_live)
+    # the streamed tick log (offboard.flight.fly_cli) rewritten whole, last: complete, and ~10 % smaller in larger
+    # blocks; if it cannot be, the streamed one written during the flight stays
+    outputs.attempt(LIVE_LOG_NAME, lambda: write_table(out_dir / LIVE_LOG_NAME, LIVE_COLUMNS, rows))
     m["outputs"]["failed"] += outputs.failed
     if outputs.failed:  # say so in metrics.json too, if it can still be written (a small file: it often can)
         with contextlib.suppress(OSError):

@@ -10,11 +10,13 @@ Usage (the main options; ``slung fly --help`` and ``docs/usage-fly-demo.md`` lis
               [--end hold|land] [--on-signal hold|land] [--rt-priority N] [--force] --out DIR
 
 Writes into DIR: ``flight.tlog`` (every packet in and out, QGC format, flushed as written),
-``timeseries_live.csv`` (one row per tick, every estimator / controller / setpoint field at full precision, the
-columns of ``offboard.flight.loop.LIVE_COLUMNS``), ``events.json`` (every watchdog, fallback and management step with
+``timeseries_live.slts`` (one row per tick, every estimator / controller / setpoint field at full precision, the
+columns of ``offboard.flight.loop.LIVE_COLUMNS``; written while the flight runs, a block every 0.5 s, in the format
+of ``offboard.logs.timeseries_file``), ``events.json`` (every watchdog, fallback and management step with
 its reason), ``metrics.json`` (the ``slung sim`` schema plus ``loop``, ``link``, ``flight`` blocks),
-``timeseries.csv`` and figures (the ``slung sim`` report). Without a truth source (a real vehicle) the
-tracking errors are those of the ESTIMATE: ``metrics.json`` says so in ``flight.truth_source``.
+``timeseries.slts`` and figures (the ``slung sim`` report); ``slung export --csv DIR`` writes them as CSV.
+Without a truth source (a real vehicle) the tracking errors are those of the ESTIMATE: ``metrics.json`` says so in
+``flight.truth_source``.
 """
 
 from __future__ import annotations
@@ -50,9 +52,11 @@ from offboard.flight.loop import (
     LoopConfig,
     TruthProbe,
 )
+from offboard.flight.loop_records import LIVE_COLUMNS
 from offboard.flight.status import FlightStatus
 from offboard.flight.supervisor import exit_code
 from offboard.logs.runlog import Scenario
+from offboard.logs.timeseries_file import LIVE_LOG_NAME, TableStreamer
 from offboard.outputs import prepare_output_dir, write_json_atomic
 
 #: the Kalman filter's fusion horizon behind its output, s (``estimators.filters.factory.make_estimator``'s default:
@@ -237,6 +241,7 @@ def fly(
     wall0 = time.perf_counter()
     prio_warning = set_realtime_priority(getattr(args, "rt_priority", 0))
     status = None if quiet else FlightStatus()  # phases and a live status line on stderr (offboard.flight.status)
+    live_stream: TableStreamer | None = None
     try:
         if status is not None:
             status.phase("connecting", f"waiting for the autopilot's heartbeat on {args.connect}")
@@ -280,6 +285,8 @@ def fly(
             )
         if status is not None:
             status.attach(loop)
+        # the tick log on disk while the loop runs (a block every 0.5 s): a killed flight leaves its ticks
+        live_stream = TableStreamer(out_dir / LIVE_LOG_NAME, LIVE_COLUMNS, loop.rows).start()
         try:
             result = loop.run()
         except UserError as exc:  # refused or impossible before the flight: the folder still says what happened
@@ -293,6 +300,9 @@ def fly(
             result.warnings.append("no load-angle telemetry: the filter estimated the swing from the IMU")
         if conn.tlog is not None and conn.tlog.failure is not None:
             result.warnings.append(conn.tlog.failure + " (the flight went on)")
+        live_stream.close()
+        if live_stream.failure is not None:
+            result.warnings.append(live_stream.failure + " (the flight went on)")
         link = {
             "received": conn.stats.received,
             "sent": conn.stats.sent,
@@ -307,6 +317,8 @@ def fly(
             "backend": backend,
         }
     finally:
+        if live_stream is not None:
+            live_stream.close()
         if status is not None:
             status.close()
         conn.close()

@@ -350,24 +350,51 @@ def format_summary(s: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-class _Progress:
-    """A one-line progress bar on stderr."""
+#: a sweep's progress printed to a file or pipe (not a terminal): one plain line at most this often (s)
+PLAIN_PROGRESS_PERIOD_S = 5.0
 
-    def __init__(self, total: int, enabled: bool = True, write: Callable[[str], Any] | None = None) -> None:
+
+class _Progress:
+    """Progress on stderr as suits where it goes: on a terminal one bar redrawn in place (carriage returns); to a
+    file or pipe (a log) one plain line every :data:`PLAIN_PROGRESS_PERIOD_S` and at the end, so a log holds
+    readable lines rather than one line of redraws. ``tty``: None = ask stderr; ``clock``: seconds (monotonic)."""
+
+    def __init__(
+        self,
+        total: int,
+        enabled: bool = True,
+        write: Callable[[str], Any] | None = None,
+        tty: bool | None = None,
+        clock: Callable[[], float] = time.perf_counter,
+    ) -> None:
         self.total = total
         self.enabled = enabled and total > 0
-        self.t0 = time.perf_counter()
+        self.clock = clock
+        self.t0 = clock()
+        self.tty = sys.stderr.isatty() if tty is None else tty
         self.write = write or (lambda s: print(s, end="", file=sys.stderr, flush=True))
+        self._last_plain: float | None = None
+        self._last_done = -1
 
     def update(self, done: int, rate: float) -> None:
         if not self.enabled:
             return
         frac = done / self.total
-        el = time.perf_counter() - self.t0
+        now = self.clock()
+        el = now - self.t0
         eta = el / frac - el if frac > 0 else math.nan
-        bar = "#" * int(30 * frac)
-        self.write(f"\r  [{bar:<30}] {done}/{self.total} runs, {rate:.0f} sim-s/s, ETA {eta:.0f} s ")
+        if self.tty:
+            bar = "#" * int(30 * frac)
+            self.write(f"\r  [{bar:<30}] {done}/{self.total} runs, {rate:.0f} sim-s/s, ETA {eta:.0f} s ")
+            return
+        due = self._last_plain is None or now - self._last_plain >= PLAIN_PROGRESS_PERIOD_S
+        if (due or done >= self.total) and done != self._last_done:
+            self._last_plain, self._last_done = now, done
+            self.write(
+                f"  {done}/{self.total} runs ({100 * frac:.0f} %), {rate:.0f} sim-s/s, {el:.0f} s elapsed, "
+                f"ETA {eta:.0f} s\n"
+            )
 
     def close(self) -> None:
-        if self.enabled:
+        if self.enabled and self.tty:
             self.write("\n")

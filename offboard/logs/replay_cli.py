@@ -21,6 +21,7 @@ from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle, VehicleFileError, load_vehicle, vehicle_from_toml
 from offboard.cli_args import add_no_figures_argument, finite_float
 from offboard.control.options import Switching, values
+from offboard.logs.timeseries_file import LIVE_LOG_NAME, table_path
 
 EXIT_NOT_REPLAYABLE = 3
 
@@ -87,7 +88,7 @@ def configure(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--no-live-log",
         action="store_true",
-        help="ignore the live run's timeseries_live.csv beside the log (replay from the tlog alone)",
+        help="ignore the live run's tick log (timeseries_live.slts) beside the log (replay from the tlog alone)",
     )
     p.add_argument(
         "--switching",
@@ -274,8 +275,9 @@ def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
             raise UserError(f"{path}: a {fmt} log with no attitude, position or IMU record in it")
     meta = run_metadata(path)
     live = None
+    live_path = table_path(path.parent, "timeseries_live") or path.parent / LIVE_LOG_NAME
     if meta and not args.no_live_log:
-        live = rp.load_live_table(path.parent / "timeseries_live.csv")
+        live = rp.load_live_table(live_path)
     config = build_config(args, meta, live)
     out_dir = prepare_output_dir(args.out or path.with_name(path.stem + "-replay"))
     inv = rp.inventory(sc)
@@ -291,7 +293,7 @@ def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
     try:
         result = rp.replay(sc, inv, config, progress=(lambda f: bar(0.5 + 0.5 * f)) if bar else None)
     except rp.LiveLogMismatchError as exc:
-        raise UserError(f"{path.parent / 'timeseries_live.csv'}: {exc} (use --no-live-log)") from None
+        raise UserError(f"{live_path}: {exc} (use --no-live-log)") from None
     wall = time.perf_counter() - wall0
     result.metrics["reader"] = rstats
     if len(result.data) == 0:  # nothing was flown that the estimator could run on: say why, never "0 ticks"

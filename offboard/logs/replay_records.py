@@ -1,21 +1,22 @@
 """The inputs and outputs of ``slung replay`` (``offboard.logs.replay``): the reference a flight used, the live
-loop's own per-tick log (``timeseries_live.csv``) read back, the replay's configuration, its table's columns and
+loop's own per-tick log (``timeseries_live.slts``) read back, the replay's configuration, its table's columns and
 its result, and the filter's first guess. Model frame (world NWU z up, body FLU), SI units, radians; times in s.
 """
 
 from __future__ import annotations
 
 import math
-import operator
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from estimators.errors import UserError
 from estimators.model.control_state import ControlState
 from estimators.model.measurements import Attitude, LoadAngle, PositionVelocity
 from estimators.model.vehicle import Vehicle
 from offboard.logs.estimate_columns import EST_NAMES, INNOVATION_COLUMNS, SIGMA_COLUMNS
+from offboard.logs.timeseries_file import read_table
 
 
 @dataclass(frozen=True)
@@ -59,7 +60,7 @@ class LiveLogMismatchError(ValueError):
 
 @dataclass(frozen=True)
 class LiveRun:
-    """The live loop's own per-tick log (``timeseries_live.csv`` of ``slung fly`` / ``slung demo``; columns of
+    """The live loop's own per-tick log (``timeseries_live.slts`` of ``slung fly`` / ``slung demo``; columns of
     ``offboard.flight.loop.LIVE_COLUMNS``): tick vehicle time ``t_vehicle`` (s), controller time ``t_ref`` (s),
     cumulative number of measurements pushed to the estimator ``n_meas``, the estimate the controller used (N x 24,
     order :data:`EST_COLUMNS`) and the setpoint's wire fields (N x 8 attitude / N x 4 actuator, full precision)."""
@@ -75,42 +76,25 @@ LIVE_EST_NAMES = EST_NAMES  # the loop's estimate columns, read back
 
 
 def load_live_table(path: Any) -> LiveRun | None:
-    """The :class:`LiveRun` in the CSV at ``path``, or None when the file is missing, lacks a needed column or has
-    a row of another width. Only the needed columns are converted (``float`` of each field: the same doubles as
-    ``np.loadtxt``, in a third of its time on the loop's ~70 columns)."""
+    """The :class:`LiveRun` in the tick log at ``path`` (``timeseries_live.slts``, or the ``timeseries_live.csv`` of
+    a run folder written before that format: ``offboard.logs.timeseries_file.read_table`` reads both), or None when
+    the file is missing, unreadable or lacks a needed column. A tick log cut short (a killed flight) gives its whole
+    blocks."""
     try:
-        with open(path, encoding="utf-8") as fh:
-            header = fh.readline().strip().split(",")
-            lines = fh.read().split("\n")
-    except (OSError, ValueError):
+        table = read_table(path)
+    except UserError:
         return None
-    idx = {n: i for i, n in enumerate(header)}
+    idx = table.index
     need = ["t_vehicle", "t_ref", "n_meas", *("est_" + n for n in LIVE_EST_NAMES), *(f"sp{i}" for i in range(4))]
     if any(n not in idx for n in need):
         return None
     sp_cols = [idx[f"sp{i}"] for i in range(8) if f"sp{i}" in idx]
-    cols = [idx["t_vehicle"], idx["t_ref"], idx["n_meas"], *(idx["est_" + n] for n in LIVE_EST_NAMES), *sp_cols]
-    pick = operator.itemgetter(*cols)
-    width = len(header)
-    values: list[float] = []
-    n = 0
-    try:
-        for line in lines:
-            if not line.strip():
-                continue
-            fields = line.split(",")
-            if len(fields) != width:
-                return None
-            values.extend(map(float, pick(fields)))
-            n += 1
-    except ValueError:
-        return None
-    data = np.array(values, dtype=float).reshape(n, len(cols))
-    ne = len(LIVE_EST_NAMES)
-    sp = data[:, 3 + ne :]
+    data = table.data
+    est = data[:, [idx["est_" + n] for n in LIVE_EST_NAMES]]
+    sp = data[:, sp_cols]
     if sp.shape[1] >= 8 and np.all(np.isnan(sp[:, 4:8])):
         sp = sp[:, :4]
-    return LiveRun(data[:, 0], data[:, 1], data[:, 2].astype(int), data[:, 3 : 3 + ne], sp)
+    return LiveRun(data[:, idx["t_vehicle"]], data[:, idx["t_ref"]], data[:, idx["n_meas"]].astype(int), est, sp)
 
 
 @dataclass(frozen=True)

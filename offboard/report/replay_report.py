@@ -1,4 +1,4 @@
-"""Outputs of ``slung replay``: ``timeseries.csv``, ``metrics.json``, figures and the terminal summary table.
+"""Outputs of ``slung replay``: ``timeseries.slts``, ``metrics.json``, figures and the terminal summary table.
 
 Files are written atomically (``offboard.outputs``); figures use matplotlib's Agg backend. Units: SI, radians,
 model frame; ``t`` is the vehicle's time since boot (s).
@@ -6,7 +6,6 @@ model frame; ``t`` is the vehicle's time since boot (s).
 
 from __future__ import annotations
 
-import io
 import math
 from pathlib import Path
 from typing import Any
@@ -14,15 +13,15 @@ from typing import Any
 import numpy as np
 
 from offboard.logs.replay_records import SP_ACT, SP_ATT, ReplayResult
-from offboard.outputs import write_json_atomic, write_text_atomic
+from offboard.logs.timeseries_file import RUN_LOG_NAME, write_table
+from offboard.outputs import write_json_atomic
 from offboard.report.figures import pyplot, save_png
 
 
 def write_timeseries(result: ReplayResult, path: Path) -> Path:
-    """Every tick as CSV (header = column names; NaN where a quantity does not apply), full precision."""
-    buf = io.StringIO()
-    np.savetxt(buf, result.data, delimiter=",", header=",".join(result.columns), comments="", fmt="%.17g")
-    return write_text_atomic(path, buf.getvalue())
+    """Every tick as a time series file (``offboard.logs.timeseries_file``; NaN where a quantity does not apply),
+    full precision."""
+    return write_table(path, result.columns, result.data)
 
 
 def write_outputs(
@@ -33,7 +32,7 @@ def write_outputs(
     controller's vehicle) places the vehicle behind the estimated flat output."""
     paths = [
         write_json_atomic(out_dir / "metrics.json", result.metrics),
-        write_timeseries(result, out_dir / "timeseries.csv"),
+        write_timeseries(result, out_dir / RUN_LOG_NAME),
     ]
     if figures and len(result.data) > 1:
         from offboard.report.replay_figures import draw_pngs

@@ -1,4 +1,4 @@
-"""Report folder of a run: ``metrics.json``, ``timeseries.csv``, ``report.html`` (``offboard.report.run_report_html``)
+"""Report folder of a run: ``metrics.json``, ``timeseries.slts``, ``report.html`` (``offboard.report.run_report_html``)
 and PNG figures like the paper's Figs. 5-13 (plus the estimation and, for flights, the setpoint figure).
 
 The figures are described first (:func:`figure_specs`: what each panel plots, its limits and markers; the data
@@ -8,7 +8,6 @@ written atomically (``offboard.outputs``); matplotlib runs on its non-interactiv
 
 from __future__ import annotations
 
-import io
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,22 +16,21 @@ from typing import Any
 import numpy as np
 
 from offboard.logs.runlog import COL, LOG_COLUMNS, SimLog
-from offboard.outputs import write_json_atomic, write_text_atomic
+from offboard.logs.timeseries_file import RUN_LOG_NAME, write_table
+from offboard.outputs import write_json_atomic
 from offboard.report.figures import pyplot, save_png
 
-#: Columns written to timeseries.csv (all of them) and the decimation to about this rate.
+#: Columns written to timeseries.slts (all of them) and the decimation to about this rate.
 TIMESERIES_RATE_HZ = 100.0
 
 
 def write_timeseries(log: SimLog, path: Path, rate_hz: float = TIMESERIES_RATE_HZ) -> Path:
-    """Write the log as CSV, decimated to about ``rate_hz`` (the header names every column; SI, rad)."""
+    """Write the log as a time series file (``offboard.logs.timeseries_file``: every column named, SI, rad, float64),
+    decimated to about ``rate_hz``."""
     t = log.column("t")
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
     stride = max(1, round(1.0 / (rate_hz * dt)))
-    rows = log.data[::stride]
-    buf = io.StringIO()
-    np.savetxt(buf, rows, delimiter=",", header=",".join(LOG_COLUMNS), comments="", fmt="%.9g")
-    return write_text_atomic(path, buf.getvalue())
+    return write_table(path, LOG_COLUMNS, log.data[::stride])
 
 
 def write_report(
@@ -46,13 +44,13 @@ def write_report(
     live_col: dict[str, int] | None = None,
     events: dict[str, Any] | None = None,
 ) -> list[Path]:
-    """Write metrics.json, timeseries.csv and (unless ``figures`` is False) report.html and the PNG figures into
+    """Write metrics.json, timeseries.slts and (unless ``figures`` is False) report.html and the PNG figures into
     ``out_dir``; returns the paths. ``command``: the ``slung`` command that ran (titles); ``live`` /
     ``live_col`` / ``events``: a flight's tick rows, their column index and its ``events.json`` content
     (setpoints, loop timing, events)."""
     from offboard.report.run_report_html import write_run_html
 
-    written = [write_json_atomic(out_dir / "metrics.json", metrics), write_timeseries(log, out_dir / "timeseries.csv")]
+    written = [write_json_atomic(out_dir / "metrics.json", metrics), write_timeseries(log, out_dir / RUN_LOG_NAME)]
     if figures:  # --no-figures: metrics and time series only (the page costs 1-2 s of CPU on a 50 s run)
         written.append(write_run_html(out_dir, log, metrics, command, live=live, live_col=live_col, events=events))
         written += draw_figures(log, metrics, out_dir, command=command, live=live, live_col=live_col, events=events)

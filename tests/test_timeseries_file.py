@@ -1,0 +1,169 @@
+"""The run folder's time series format (offboard/logs/timeseries_file.py): bit-exact round trip, a truncated file
+read up to its last whole block, the streamer appending while a writer thread adds rows, the CSV of older run
+folders still read, ``slung export --csv``, and a real flight killed with SIGKILL read back to within 1 s of the
+kill."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from estimators.errors import UserError
+from offboard.logs.timeseries_file import (
+    STREAM_PERIOD_S,
+    TableStreamer,
+    read_table,
+    table_path,
+    write_table,
+)
+
+COLS = ("t", "a", "b")
+
+
+def _data(n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    d = np.column_stack([np.arange(n) * 0.004, rng.standard_normal(n), np.cumsum(rng.standard_normal(n))])
+    d[3, 1] = np.nan
+    d[4, 2] = np.inf
+    d[5, 2] = -0.0
+    return d
+
+
+def test_round_trip_is_bit_exact(tmp_path: Path) -> None:
+    d = _data(10_000)
+    p = write_table(tmp_path / "x.slts", COLS, d, meta={"rate_hz": 250})
+    t = read_table(p)
+    assert t.complete and t.columns == COLS and t.meta == {"rate_hz": 250}
+    assert t.data.tobytes() == d.tobytes()  # every bit, NaN, inf and -0.0 included
+    assert np.isnan(t["a"][3]) and np.isinf(t["b"][4]) and np.signbit(t["b"][5])
+    assert p.stat().st_size < d.nbytes  # compressed
+
+
+def test_truncated_file_keeps_every_whole_block(tmp_path: Path) -> None:
+    rows: list[tuple[float, ...]] = []
+    s = TableStreamer(tmp_path / "live.slts", COLS, rows)
+    d = _data(900)
+    sizes = []
+    for k in range(0, 900, 100):  # nine blocks of 100 rows, appended as the thread would
+        rows.extend(map(tuple, d[k : k + 100]))
+        s._append()
+        sizes.append(s.path.stat().st_size)
+    s._fh.close()  # as a killed process leaves it: no end mark
+    raw = s.path.read_bytes()
+    for cut, whole in [(len(raw), 9), (sizes[4] + 10, 5), (sizes[4], 5), (sizes[0] - 1, 0)]:
+        (tmp_path / "cut.slts").write_bytes(raw[:cut])
+        t = read_table(tmp_path / "cut.slts")
+        assert not t.complete
+        assert len(t) == 100 * whole
+        assert t.data.tobytes() == d[: 100 * whole].tobytes()
+
+
+def test_streamer_appends_while_rows_grow(tmp_path: Path) -> None:
+    rows: list[tuple[float, ...]] = []
+    s = TableStreamer(tmp_path / "live.slts", COLS, rows).start()
+    d = _data(600)
+
+    def producer() -> None:
+        for r in d:
+            rows.append(tuple(r))
+            time.sleep(0.004)
+
+    th = threading.Thread(target=producer)
+    th.start()
+    time.sleep(4 * STREAM_PERIOD_S)
+    mid = read_table(s.path)  # while it is written: complete blocks, no end mark yet
+    assert not mid.complete and 0 < len(mid) < 600
+    assert mid.data.tobytes() == d[: len(mid)].tobytes()
+    th.join()
+    s.close()
+    t = read_table(s.path)
+    assert t.complete and t.data.tobytes() == d.tobytes()
+
+
+def test_streamer_writes_nothing_before_the_first_row(tmp_path: Path) -> None:
+    s = TableStreamer(tmp_path / "live.slts", COLS, []).start()
+    s.close()
+    assert not s.path.exists()
+
+
+def test_older_csv_folder_is_still_read(tmp_path: Path) -> None:
+    d = _data(50)
+    np.savetxt(tmp_path / "timeseries_live.csv", d, delimiter=",", header=",".join(COLS), comments="", fmt="%.17g")
+    p = table_path(tmp_path, "timeseries_live")
+    assert p == tmp_path / "timeseries_live.csv"
+    t = read_table(p)
+    assert t.columns == COLS and t.data.tobytes() == d.tobytes()
+
+
+def test_not_a_table_is_one_line_error(tmp_path: Path) -> None:
+    (tmp_path / "x.slts").write_bytes(b"\x00\x01garbage")
+    with pytest.raises(UserError, match="neither a slung time series"):
+        read_table(tmp_path / "x.slts")
+    with pytest.raises(UserError, match="cannot read"):
+        read_table(tmp_path / "missing.slts")
+
+
+def _slung(*args: str, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "offboard.cli", *args], capture_output=True, text=True, **kw)
+
+
+def test_export_csv(tmp_path: Path) -> None:
+    d = _data(300)
+    write_table(tmp_path / "timeseries.slts", COLS, d)
+    r = _slung("export", "--csv", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    assert "300 rows, 3 columns" in r.stdout
+    back = np.loadtxt(tmp_path / "timeseries.csv", delimiter=",", skiprows=1)
+    assert back.tobytes() == d.tobytes()  # %.17g: the same doubles
+    bad = _slung("export", "--csv", str(tmp_path / "nowhere"))
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "Traceback" not in bad.stderr
+
+
+@pytest.mark.slow
+def test_flight_killed_with_sigkill_leaves_its_ticks(tmp_path: Path) -> None:
+    """A real ``slung demo`` (emulator in its process, lockstep) killed with SIGKILL in mid-flight: the tick log
+    on disk is read up to within 1 s (of the monotonic clock the loop stamps ``t_local`` with) of the kill."""
+    out = tmp_path / "run"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "offboard.cli", "demo", "--out", str(out), "--no-figures"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    live = out / "timeseries_live.slts"
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline:  # wait until a few seconds of control are on disk
+            if live.exists():
+                try:
+                    if len(read_table(live)) >= 1000:
+                        break
+                except UserError:
+                    pass
+            assert proc.poll() is None, "the demo ended before it was killed"
+            time.sleep(0.2)
+        else:
+            pytest.fail("no tick log appeared within 240 s")
+        time.sleep(1.3)
+        t_kill = time.monotonic()
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    t = read_table(live)
+    assert not t.complete  # no end mark: the flight did not finish
+    t_local = t["t_local"]
+    assert np.all(np.diff(t_local) >= 0)
+    lost = t_kill - float(t_local[-1])
+    assert 0.0 <= lost <= 1.0, f"the last tick on disk is {lost:.2f} s before the kill"
