@@ -1,10 +1,13 @@
 """Nominal flights and how they end (issue 39): ``slung fly --scenario paper`` against ``slung emulate --realtime``
 (its own process, at ``SCHED_FIFO`` ``--emulator-priority``, default 10, as the issue's battery ran it) over UDP on
-127.0.0.1, ``--flights`` times, each as its own ``slung fly`` process with the default watchdogs. One JSON line per
-flight (ended_by, exit code, the staleness limit and what it was derived from, the longest gap bridged, the hold's
-longest ATTITUDE gap, the load average), then a summary: the count by ``ended_by`` and of ``telemetry_stale``.
+127.0.0.1, ``--flights`` times, each as its own ``slung fly`` process with the default watchdogs at the real-time
+priority docs/deploy.md recommends on a busy computer (``--loop-priority``, default 20: ``slung fly --rt-priority``).
+One JSON line per flight (ended_by, exit code, the staleness limit and what it was derived from, the longest gap
+bridged, the hold's longest ATTITUDE gap, the load average), then a summary: the count by ``ended_by`` and of
+``telemetry_stale``.
 
-    python bench/nominal_flights.py [--flights 50] [--out DIR] [--emulator-priority 10] [--lockstep]
+    python bench/nominal_flights.py [--flights 50] [--out DIR] [--emulator-priority 10] [--loop-priority 20]
+                                    [--lockstep]
 
 Needs the right to set SCHED_FIFO (root or CAP_SYS_NICE) for the emulator's priority; without it the emulator
 runs at normal priority and the summary says so.
@@ -31,7 +34,7 @@ from emulator_helpers import emulator_process, stop_emulator_process  # noqa: E4
 from offboard.harness.demo_cli import free_udp_port  # noqa: E402
 
 
-def one(i: int, out: Path, priority: int, lockstep: bool) -> dict:
+def one(i: int, out: Path, priority: int, lockstep: bool, loop_priority: int = 0) -> dict:
     """One flight; its figures."""
     port = free_udp_port()
     emu = emulator_process(
@@ -47,6 +50,8 @@ def one(i: int, out: Path, priority: int, lockstep: bool) -> dict:
     folder = out / f"flight-{i:03d}"
     cmd = [str(Path(sys.executable).parent / "slung"), "fly", "--connect", f"udpin:127.0.0.1:{port}"]
     cmd += ["--scenario", "paper", "--no-figures", "--out", str(folder), *(("--lockstep",) if lockstep else ())]
+    if loop_priority > 0:
+        cmd += ["--rt-priority", str(loop_priority)]
     load = os.getloadavg()[0]
     t0 = time.monotonic()
     try:
@@ -54,7 +59,7 @@ def one(i: int, out: Path, priority: int, lockstep: bool) -> dict:
     finally:
         stop_emulator_process(emu)
     row: dict = {"flight": i, "exit": p.returncode, "wall_s": round(time.monotonic() - t0, 1), "load": load}
-    row["emulator"] = prio
+    row["emulator"], row["loop"] = prio, f"SCHED_FIFO {loop_priority}" if loop_priority > 0 else "normal"
     try:
         m = json.loads((folder / "metrics.json").read_text())
     except (OSError, ValueError):
@@ -80,13 +85,14 @@ def main() -> None:
     ap.add_argument("--flights", type=int, default=50)
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--emulator-priority", type=int, default=10, help="SCHED_FIFO priority of the emulator (0: none)")
+    ap.add_argument("--loop-priority", type=int, default=20, help="slung fly --rt-priority (0: normal scheduling)")
     ap.add_argument("--lockstep", action="store_true", help="emulator and loop in lockstep instead of real time")
     a = ap.parse_args()
     out = a.out or Path(tempfile.mkdtemp(prefix="slung-nominal-"))
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for i in range(a.flights):
-        row = one(i, out, a.emulator_priority, a.lockstep)
+        row = one(i, out, a.emulator_priority, a.lockstep, a.loop_priority)
         rows.append(row)
         print(json.dumps(row), flush=True)
     ends = collections.Counter(r["ended_by"] for r in rows)

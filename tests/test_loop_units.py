@@ -89,6 +89,31 @@ def test_staleness_watchdog_real_time_and_lockstep(loop: FlightLoop) -> None:
         loop._watchdogs(5.06, 0.0)  # the position is 0.11 s old
 
 
+def test_a_tick_past_its_deadline_reads_the_waiting_telemetry_first(loop: FlightLoop) -> None:
+    """After a stall of the loop itself its tick's deadline is long past: the telemetry that came meanwhile is read
+    before the tick, so the staleness watchdog sees it (the slot pacing ticked without reading, and a 333 ms stall
+    of the loop read as 333 ms without telemetry, 7 Dec 2026). A real datagram on the loop's real UDP socket."""
+    import time
+
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    from offboard.flight.tick_pacing import TickPacer
+
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    port = loop.conn.conn.port.getsockname()[1]
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        s.sendto(mav.attitude_encode(1000, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0).pack(mav), ("127.0.0.1", port))
+        time.sleep(0.05)  # on the socket, unread
+        pacer = TickPacer(0.004)
+        pacer.window(time.monotonic() - 1.0)  # the slot of a tick one second ago: its deadline long past
+        before = time.monotonic()
+        assert loop._await_slot(pacer) is True
+        assert loop.last_rx_local["Attitude"] >= before  # read now: its age at the watchdog is ~0, not the stall
+    finally:
+        s.close()
+
+
 def test_divergence_and_swing_watchdogs(loop: FlightLoop) -> None:
     loop.last_pos = PositionVelocity(1.0, 0.3, 0.0, 1.0, 0.0, 0.0, 0.0)
     loop._check_swing(_est(x=0.3 + 0.9))  # 0.9 m off: fine

@@ -9,6 +9,7 @@ import argparse
 import json
 import os
 import socket
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -109,6 +110,38 @@ def test_the_loop_connection_is_not_poisoned_by_a_forged_packet_from_the_autopil
     finally:
         conn.close()
         ap.close()
+
+
+def test_a_signing_loop_facing_an_unsigned_or_other_key_autopilot_says_so() -> None:
+    """Issue 39: a signing ``slung fly`` facing an autopilot that does not sign said only "no autopilot heartbeat";
+    the refused packets tell why, over a real UDP socket."""
+    plain = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    other_key = _signer(1, 1, 0, key=bytes(range(32, 64)))
+    for sender, words in ((plain, "unsigned packets refused"), (other_key, "bad signature")):
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+        s.close()
+        conn = MavConnection(f"udpin:127.0.0.1:{port}", signing=SigningConfig(KEY, 1, None))
+        ap = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        stop = threading.Event()
+
+        def beat(mav: Any, sock: socket.socket, to: int, done: threading.Event) -> None:
+            while not done.is_set():
+                sock.sendto(mav.heartbeat_encode(2, 12, 0, 0, 3).pack(mav), ("127.0.0.1", to))
+                time.sleep(0.05)
+
+        th = threading.Thread(target=beat, args=(sender, ap, port, stop), daemon=True)
+        th.start()
+        try:
+            with pytest.raises(UserError, match=words) as e:
+                conn.wait_heartbeat(timeout=1.0)
+            assert "no signed autopilot heartbeat" in str(e.value)
+        finally:
+            stop.set()
+            th.join()
+            conn.close()
+            ap.close()
 
 
 def test_keys_and_timestamps(tmp_path: Path) -> None:

@@ -331,7 +331,7 @@ def fly(
             "state": str(signing.state_path),
             "good_signatures": conn.mav.signing.goodsig_count,
             "bad_signatures": conn.mav.signing.badsig_count,
-            "unsigned_refused": conn.mav.signing.unsigned_count,
+            "unsigned_refused": conn.stats.refused_unsigned,
         }
     )
     wall = time.perf_counter() - wall0

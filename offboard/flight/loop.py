@@ -25,7 +25,7 @@ Each tick
 Watchdogs (each ends offboard control by switching the vehicle to its hold mode, logged with the reason)
     - ``telemetry_stale``: no ATTITUDE or no position for longer than the staleness limit (wall time in real
       time, vehicle time in lockstep): derived from the link's gaps measured in the hold before control, within
-      ``stale_s``..``stale_ceiling_s`` (default 0.3..1 s; ``offboard.flight.staleness``); a shorter gap is flown
+      ``stale_s``..``stale_ceiling_s`` (default 0.5..1 s; ``offboard.flight.staleness``); a shorter gap is flown
       on the filter's prediction, and reported (``telemetry_gap``) when longer than any the hold showed;
     - ``estimator_divergence``: a non-finite estimate, or the estimated vehicle position more than
       ``divergence_m`` (default 1 m) from the autopilot's latest position;

@@ -166,7 +166,7 @@ class LinkSupervision:
         return {
             "nonfinite_telemetry": self.decoder.counts.get("refused_nonfinite", 0),
             "foreign_sender": getattr(st, "foreign_datagrams", 0),
-            "refused_signature": sg.badsig_count + sg.unsigned_count if signed else 0,
+            "refused_signature": sg.badsig_count + getattr(st, "refused_unsigned", 0) if signed else 0,
         }
 
     def _report_dropped(self, final: bool = False) -> None:

@@ -224,8 +224,10 @@ class TickLoop:
         got = False
         while True:
             now = time.monotonic()
-            if (got and now >= early) or now >= deadline or self._signal is not None:
+            if (got and now >= early) or self._signal is not None:
                 return got
+            if now >= deadline:  # read what waits before ticking (after a stall of the loop its deadline is long past)
+                return self._read() or got
             if self._wait((early if got else deadline) - now):
                 got = True
 

@@ -172,6 +172,8 @@ class LinkStats:
     #: other systems seen on the autopilot's link (any message, heartbeats included): system id -> messages
     foreign_systems: dict[int, int] = field(default_factory=dict)
     deferred_polls: int = 0  # polls that left messages for the next one (READ_BUDGET reached)
+    #: frames refused by the signing check for carrying no signature (pymavlink counts only the bad signatures)
+    refused_unsigned: int = 0
     by_type: dict[str, int] = field(default_factory=dict)
 
 
@@ -358,6 +360,9 @@ class MavConnection:
             kind = msg.get_type()
             if kind == "BAD_DATA":
                 self.stats.bad_data += 1
+                data = getattr(msg, "data", b"")
+                if getattr(msg, "reason", "") == "Invalid signature" and len(data) > 2 and not data[2] & 0x01:
+                    self.stats.refused_unsigned += 1
                 continue
             self.stats.received += 1
             self.stats.by_type[kind] = self.stats.by_type.get(kind, 0) + 1
@@ -506,6 +511,19 @@ class MavConnection:
             time.sleep(0.005)
         if other is not None:
             raise UserError(f"{self.url}: the autopilot is neither PX4 (12) nor ArduPilot (3): {other}")
+        sg = self.mav.signing if self.signing is not None else None
+        unsigned = self.stats.refused_unsigned
+        if sg is not None and unsigned > 0:  # something talks, but unsigned: our refusal, not silence
+            raise UserError(
+                f"no signed autopilot heartbeat on {self.url} within {timeout:g} s: {unsigned} unsigned "
+                "packets refused (the autopilot does not sign: give it the key, docs/deploy.md 4a, or fly without "
+                "--signing-key)"
+            )
+        if sg is not None and sg.badsig_count > 0:
+            raise UserError(
+                f"no signed autopilot heartbeat on {self.url} within {timeout:g} s: {sg.badsig_count} packets refused "
+                "for a bad signature (the autopilot signs with another key, or its timestamps are behind ours)"
+            )
         raise UserError(f"no autopilot heartbeat on {self.url} within {timeout:g} s")
 
     def _require_vehicle(self) -> VehicleInfo:
