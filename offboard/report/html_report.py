@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from offboard.outputs import write_text_atomic
-from offboard.report.html_view import MAX_POINTS, Animation, view_figure
+from offboard.report.html_view import MAX_POINTS, Animation, display, view_figure
 
 #: events this close outside the plotted range are still drawn (a flight's start and hand-over events fall just
 #: before its first tick and just after its last), s
@@ -150,8 +150,8 @@ def _time_figure(panels: Sequence[Panel], events: Sequence[Event], t_range: tupl
                 lo_t, lo = decimate(tt, tr.band[0])
                 hi_t, hi = decimate(tt, tr.band[1])
                 fig.add_scatter(
-                    x=np.concatenate([lo_t, hi_t[::-1]]),
-                    y=np.concatenate([lo, hi[::-1]]),
+                    x=display(np.concatenate([lo_t, hi_t[::-1]])),
+                    y=display(np.concatenate([lo, hi[::-1]])),
                     fill="toself",
                     fillcolor=_rgba(color, 0.2),
                     line={"width": 0},
@@ -164,8 +164,8 @@ def _time_figure(panels: Sequence[Panel], events: Sequence[Event], t_range: tupl
                 )
             x, y = decimate(tt, tr.y)
             fig.add_scatter(
-                x=x,
-                y=y,
+                x=display(x),
+                y=display(y),
                 mode="lines",
                 name=tr.name,
                 line={"width": 1.2, "dash": "dash" if tr.dash else "solid", "color": color},

@@ -47,6 +47,17 @@ def _frame_indices(t: np.ndarray, frame_rate_hz: float = FRAME_RATE_HZ, max_fram
     return np.unique(np.clip(np.searchsorted(t, targets), 0, len(t) - 1))
 
 
+def display(a: Any) -> np.ndarray:
+    """An array as the page draws it: float32 (7 significant digits, far finer than a screen's pixels; plotly
+    embeds it as half the bytes of float64). The run folder's time series keep every value at full precision."""
+    return np.asarray(a, dtype=np.float32)
+
+
+def _mm(v: float) -> float:
+    """A position in a frame of the animation, to 0.1 mm (written as JSON text: shorter than 17 digits)."""
+    return round(float(v), 4)
+
+
 def view_figure(anim: Animation) -> tuple[Any, float]:
     """The 3D view with its frames, play / pause / speed buttons and slider; returns (figure, frame step s)."""
     import plotly.graph_objects as go
@@ -61,18 +72,18 @@ def view_figure(anim: Animation) -> tuple[Any, float]:
     k0 = int(idx[0]) if len(idx) else 0
     data = [
         go.Scatter3d(
-            x=path_v[:, 0],
-            y=path_v[:, 1],
-            z=path_v[:, 2],
+            x=display(path_v[:, 0]),
+            y=display(path_v[:, 1]),
+            z=display(path_v[:, 2]),
             mode="lines",
             name="vehicle path",
             line={"color": "rgba(31,119,180,0.35)", "width": 2},
             hoverinfo="skip",
         ),
         go.Scatter3d(
-            x=path_l[:, 0],
-            y=path_l[:, 1],
-            z=path_l[:, 2],
+            x=display(path_l[:, 0]),
+            y=display(path_l[:, 1]),
+            z=display(path_l[:, 2]),
             mode="lines",
             name="load path",
             line={"color": "rgba(255,127,14,0.35)", "width": 2},
@@ -83,9 +94,9 @@ def view_figure(anim: Animation) -> tuple[Any, float]:
         ref = np.asarray(anim.reference, dtype=float)[:: max(1, len(anim.reference) // MAX_POINTS)]
         data.append(
             go.Scatter3d(
-                x=ref[:, 0],
-                y=ref[:, 1],
-                z=ref[:, 2],
+                x=display(ref[:, 0]),
+                y=display(ref[:, 1]),
+                z=display(ref[:, 2]),
                 mode="lines",
                 name="reference (load)",
                 line={"color": "#2ca02c", "width": 3, "dash": "dash"},
@@ -98,23 +109,28 @@ def view_figure(anim: Animation) -> tuple[Any, float]:
         v, q = veh[k], load[k]
         return [
             go.Scatter3d(
-                x=[v[0], q[0]],
-                y=[v[1], q[1]],
-                z=[v[2], q[2]],
+                x=[_mm(v[0]), _mm(q[0])],
+                y=[_mm(v[1]), _mm(q[1])],
+                z=[_mm(v[2]), _mm(q[2])],
                 mode="lines",
                 name="cable",
                 line={"color": "#444", "width": 4},
             ),
             go.Scatter3d(
-                x=[v[0]],
-                y=[v[1]],
-                z=[v[2]],
+                x=[_mm(v[0])],
+                y=[_mm(v[1])],
+                z=[_mm(v[2])],
                 mode="markers",
                 name="vehicle",
                 marker={"size": 7, "color": "#1f77b4", "symbol": "square"},
             ),
             go.Scatter3d(
-                x=[q[0]], y=[q[1]], z=[q[2]], mode="markers", name="load", marker={"size": 6, "color": "#ff7f0e"}
+                x=[_mm(q[0])],
+                y=[_mm(q[1])],
+                z=[_mm(q[2])],
+                mode="markers",
+                name="load",
+                marker={"size": 6, "color": "#ff7f0e"},
             ),
         ]
 
