@@ -27,7 +27,7 @@ import numpy as np
 
 from estimators.filters.fusion import chi2_quantile
 from estimators.filters.measured_kf import MeasuredTuning, thrust_window
-from estimators.filters.measured_model import channel_floors
+from estimators.filters.measured_model import channel_floors, for_line
 from estimators.filters.small_kf import propagate_cov, propagate_cov3
 from estimators.model.flatness import flat_constants
 from estimators.model.vehicle import Vehicle
@@ -225,7 +225,7 @@ class BatchedMeasuredKalman:
         if not tuning.tilt_command:  # its tilt blocks always take the commanded tilt acceleration as input
             raise ValueError("the batched filter always takes the commanded tilt acceleration (tuning.tilt_command)")
         self.B = B
-        self.tuning = tn = tuning
+        self.tuning = tn = for_line(tuning, vehicle.cable_length)
         self.delay = float(delay_s)
         self.k = flat_constants(vehicle)
         self.inertia = vehicle.inertia
