@@ -145,3 +145,71 @@ def test_a_swinging_load_taken_over_on_a_long_line_is_damped_not_chased(
     assert worst(10.0)[1] < 1.5, worst(10.0)
     swing, err = worst(20.0)
     assert swing < 1.0 and err < 1.3, (swing, err)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# the load on the ground (item 3)
+# ------------------------------------------------------------------------------------------------------------------
+def _feasibility(line_m: float, height_m: float) -> Any:
+    from offboard.control import smc
+    from offboard.control.feasibility import FeasibilityLimits, check_reference
+    from offboard.control.reference_patterns import hover
+
+    v = load_vehicle("ardupilot-sitl-quad").with_changes(cable_length=line_m)
+    return check_reference(
+        hover(0.0, 0.0, height_m), 5.0, v, FeasibilityLimits.from_config(smc.ControllerParams.for_vehicle(v))
+    )
+
+
+def test_a_reference_that_puts_the_load_on_the_ground_is_refused_or_warned() -> None:
+    """Heights are above the take-off point, the ground: a load below it is infeasible, one within the clearance
+    (a 2 m line flown at 2 m, which left ArduPilot SITL's load on the ground for 35 % of the flight) a warning."""
+    below = _feasibility(10.0, 5.0)
+    assert not below.feasible
+    d = below.demand("load_height")
+    assert d.status == "infeasible" and d.peak == pytest.approx(-5.0) and "load's height" in below.messages[0]
+    touching = _feasibility(2.0, 2.0)
+    assert touching.feasible and touching.demand("load_height").status == "warning"
+    assert "the load may touch down" in touching.demand("load_height").why
+    clear = _feasibility(20.0, 22.0)
+    assert clear.demand("load_height").status == "ok" and clear.demand("load_height").peak == pytest.approx(2.0)
+
+
+def test_slung_fly_refuses_a_load_below_the_ground_before_connecting(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import socket
+
+    from offboard.cli import main
+
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.05)
+    try:
+        argv = ["fly", "--connect", f"udpout:127.0.0.1:{sock.getsockname()[1]}", "--out", str(tmp_path / "o")]
+        code = main([*argv, "--scenario", "hover", "--vehicle", str(_with_line(tmp_path, 10.0))])
+        with pytest.raises(TimeoutError):
+            sock.recvfrom(100)  # refused before any packet
+    finally:
+        sock.close()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "load's height above the take-off point -9" in err[0], err
+
+
+def test_a_load_touching_down_or_lifting_off_in_flight_is_an_event() -> None:
+    from estimators.model.control_state import ControlState
+    from offboard.flight.load_ground import LoadGroundWatch
+
+    def at(z: float, swing: float = 0.0) -> ControlState:
+        zero6 = (0.0,) * 6
+        return ControlState(zero6, zero6, z, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, swing, 0.0, 0.0, 0.0)
+
+    w = LoadGroundWatch(cable_length=2.0, ground_z=-1.0)  # the take-off point at local z -1 m
+    assert w.update(at(1.5)) is None  # 0.5 m above the ground
+    kind, reason = w.update(at(0.9))  # type: ignore[misc]
+    assert kind == "load_touchdown" and "-0.10 m" in reason and "2 m line" in reason
+    assert w.update(at(0.8)) is None and w.update(at(1.05)) is None  # on the ground; within the hysteresis
+    # a swing lifts the load too: 2 cos(0.5) = 1.755, so at z 0.9 m it is 0.145 m up
+    assert w.update(at(0.9, 0.5)) == ("load_liftoff", "the load lifted off: estimated 0.14 m above the take-off point")
+    assert w.update(at(float("nan"))) is None
+    assert w.update(at(0.0))[0] == "load_touchdown" and w.touchdowns == 2  # type: ignore[index]

@@ -84,6 +84,7 @@ from offboard.flight.link.connection import MavConnection
 from offboard.flight.link.management import Manager, custom_mode
 from offboard.flight.link.setpoints import SetpointError, encode, encode_position
 from offboard.flight.link.telemetry import TelemetryDecoder
+from offboard.flight.load_ground import LoadGroundWatch
 from offboard.flight.loop_records import (
     DEFAULT_RATE_HZ,
     LIVE_COL,
@@ -851,6 +852,7 @@ class FlightLoop:
         period = self.period
         lockstep = cfg.lockstep
         oz = self.ground_z or 0.0  # heights of the reference are above the take-off point
+        load_watch = LoadGroundWatch(self.vehicle.cable_length, oz) if self.vehicle.mass_load > 0.0 else None
         mapper = self.mapper
         controller = self.controller
         probe = self.truth_probe
@@ -977,6 +979,8 @@ class FlightLoop:
             if prefuse is not None:  # the setpoint has left: what the next estimate would fuse first, now
                 prefuse(t_v + prefuse_ahead)
             self._check_swing(est)
+            if load_watch is not None and (ground := load_watch.update(est)) is not None:
+                self.event(*ground)  # a warning line and events.json (offboard.flight.load_ground)
             last_est = est
             v = self.supervisor.check_tracking(est.fx[0] - rfx[0], est.fy[0] - rfy[0], est.z - rz[0])
             if v is not None:
