@@ -213,3 +213,51 @@ def test_a_load_touching_down_or_lifting_off_in_flight_is_an_event() -> None:
     assert w.update(at(0.9, 0.5)) == ("load_liftoff", "the load lifted off: estimated 0.14 m above the take-off point")
     assert w.update(at(float("nan"))) is None
     assert w.update(at(0.0))[0] == "load_touchdown" and w.touchdowns == 2  # type: ignore[index]
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# PX4 heights above the home it sets at arming (item 4)
+# ------------------------------------------------------------------------------------------------------------------
+def test_home_set_at_arming_counts_only_during_the_take_off_and_armed() -> None:
+    from types import SimpleNamespace
+
+    from offboard.flight.home import HomeAtArming
+
+    home = HomeAtArming()
+    msg = SimpleNamespace(x=1.0, y=2.0, z=0.3)  # NED: home 0.3 m below the local origin
+    assert home.observe(msg, armed=True) is None  # not taking off
+    home.start()
+    assert home.observe(msg, armed=False) is None  # the heartbeat does not show the arming yet
+    assert home.observe(msg, armed=True) == pytest.approx(-0.3) and home.z == pytest.approx(-0.3)
+    home.stop()
+    assert home.observe(SimpleNamespace(x=0.0, y=0.0, z=5.0), armed=True) is None and home.z == pytest.approx(-0.3)
+
+
+def test_px4_heights_are_taken_above_the_home_set_at_arming(tmp_path: Path) -> None:
+    """The emulator (PX4 flavour) with EKF2's local-origin offset and noise: the take-off point becomes the home
+    HOME_POSITION reports once armed, exactly, not the noisy mean of the position samples before arming."""
+    import json
+
+    from offboard.flight.fly_cli import fly
+    from offboard.harness.demo_cli import EmulatorThread, free_udp_port
+
+    port = free_udp_port()
+    emu = EmulatorThread("px4", port, lockstep=True, period=0.004, ekf="px4-sih", sensors="px4-typical").start()
+    p = argparse.ArgumentParser()
+    fly_configure(p)
+    args = p.parse_args(
+        [
+            *("--connect", f"udpin:127.0.0.1:{port}", "--scenario", "hover", "--duration", "2", "--lockstep"),
+            *("--settle", "0", "--no-figures", "--out", str(tmp_path / "f")),
+        ]
+    )
+    try:
+        m, folder = fly(args, lockstep=True, quiet=True)
+    finally:
+        emu.stop()
+    ground_ned = emu.ap.ekf.ground_local_z_m  # the emulated EKF2's ground in its local frame (NED z, m)
+    assert abs(ground_ned) > 0.01  # seed 0 draws an offset: the check below is not 0 == 0
+    events = [e["reason"] for e in json.loads((folder / "events.json").read_text())["loop"]]
+    homes = [e for e in events if "PX4's home, set at arming" in e]
+    assert homes, events
+    assert m["config"]["ground_z"] == pytest.approx(-ground_ned, abs=1e-5)

@@ -203,7 +203,8 @@ def fly(
     vehicle = load_vehicle(args.vehicle)
     scenario, duration = make_reference(args) if scenario is None else (scenario, scenario.duration)
     check_reference_bounds(scenario, duration)
-    cfg = build_loop_config(args, lockstep, takeoff, inject, vehicle.cable_length)
+    line = vehicle.cable_length if vehicle.mass_load > 0.0 else 0.0  # no load: no swing to allow for
+    cfg = build_loop_config(args, lockstep, takeoff, inject, line)
     asked_law = getattr(args, "law", "auto")
     args.law = resolve_law(asked_law, args.output, vehicle)
     law = args.law
