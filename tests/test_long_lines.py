@@ -229,8 +229,13 @@ def test_home_set_at_arming_counts_only_during_the_take_off_and_armed() -> None:
     home.start()
     assert home.observe(msg, armed=False) is None  # the heartbeat does not show the arming yet
     assert home.observe(msg, armed=True) == pytest.approx(-0.3) and home.z == pytest.approx(-0.3)
+    # the first only: PX4 SITL went on moving its home in flight
+    assert home.observe(SimpleNamespace(x=0.0, y=0.0, z=-0.9), armed=True) is None and home.z == pytest.approx(-0.3)
     home.stop()
-    assert home.observe(SimpleNamespace(x=0.0, y=0.0, z=5.0), armed=True) is None and home.z == pytest.approx(-0.3)
+    home.start()
+    assert home.z is None and home.observe(SimpleNamespace(x=0.0, y=0.0, z=0.1), armed=True) == pytest.approx(-0.1)
+    home.stop()
+    assert home.observe(SimpleNamespace(x=0.0, y=0.0, z=5.0), armed=True) is None and home.z == pytest.approx(-0.1)
 
 
 def test_px4_heights_are_taken_above_the_home_set_at_arming(tmp_path: Path) -> None:
