@@ -79,7 +79,6 @@ from offboard.control.delay_margin import gain_scale, loop_delay
 from offboard.control.tick import ActuatorLag, ControlTick
 from offboard.flight.attitude_mapping import inner_loop_of
 from offboard.flight.command_mapping import CommandMapper, setpoint_fields
-from offboard.flight.home import HomeAtArming
 from offboard.flight.latency import LinkLatency
 from offboard.flight.link.connection import MavConnection
 from offboard.flight.link.management import Manager, custom_mode
@@ -200,7 +199,6 @@ class FlightLoop:
         #: samples of the take-off point's local z as the autopilot reports it (local z - relative_alt, model
         #: frame, m), and recent local z samples (m) for the vehicle on the ground
         self._home_z_samples: deque[float] = deque(maxlen=50)
-        self.home = HomeAtArming()  # PX4's home set at arming: the take-off point (offboard.flight.home)
         self._z_samples: deque[float] = deque(maxlen=100)
         #: local z (model frame, m) of the take-off point: heights in the references are above it (None: not fixed
         #: yet, heights are local z). PX4's local origin is where EKF2 started, not the ground.
@@ -273,9 +271,6 @@ class FlightLoop:
                 continue
             if kind == "GLOBAL_POSITION_INT":
                 self._on_global_position(msg, r.t_local)
-                continue
-            if kind == "HOME_POSITION":
-                self._on_home_position(msg)
                 continue
             m = self.decoder.decode(msg)
             if m is None:
@@ -420,16 +415,6 @@ class FlightLoop:
         if p is not None and t_local - self.last_rx_local.get("PositionVelocity", -math.inf) < 0.05:
             self._home_z_samples.append(p.z - self.rel_alt)
 
-    def _on_home_position(self, msg: Any) -> None:
-        """HOME_POSITION: during PX4's take-off, the home it set at arming is the take-off point
-        (``offboard.flight.home``)."""
-        armed = self.conn.vehicle is not None and bool(self.conn.vehicle.armed)
-        z = self.home.observe(msg, armed)
-        if z is not None and (self.ground_z is None or abs(z - self.ground_z) > 1e-3):
-            was = "unknown" if self.ground_z is None else f"{self.ground_z:+.3f} m"
-            self.event("phase", f"take-off point at local z {z:+.3f} m: PX4's home, set at arming (was {was})")
-            self.ground_z = z
-
     def fix_ground(self) -> None:
         """Fix :attr:`ground_z`, the take-off point's local z, once, before the take-off decision.
 
@@ -462,15 +447,6 @@ class FlightLoop:
             how = "unknown (no GLOBAL_POSITION_INT): heights are the autopilot's local z"
             self.mgr.warnings.append("take-off point unknown: reference heights are taken as local z")
         self.event("phase", f"take-off point at local z {self.ground_z:+.3f} m (model frame, up): {how}")
-
-    def _home_after_takeoff(self) -> None:
-        """After PX4's take-off: wait up to 3 s for the home set at arming if none came during the climb, then stop
-        taking it (the reference's origin is fixed from here on)."""
-        if self.home.active and self.home.z is None:
-            self.mgr.wait_for(lambda: (self._read() or True) and self.home.z is not None, 3.0)
-            if self.home.z is None:
-                self.mgr.warnings.append("no HOME_POSITION after arming: heights above the ground before arming")
-        self.home.stop()
 
     def height(self) -> float | None:
         """Latest height above the take-off point from telemetry (m), None if none yet."""
@@ -754,9 +730,7 @@ class FlightLoop:
                     prime = self.stream_hover if self.mgr.flavour == "px4" else self._idle_read
                     # PX4's take-off altitude is AMSL: the take-off point's own altitude (the vehicle is on it)
                     amsl0 = self.alt_amsl if self.alt_amsl is not None and h0 < 0.3 else self.home_alt
-                    self.home.start() if self.mgr.flavour == "px4" else None  # PX4 sets its home at arming
                     self.mgr.takeoff(ref0.z[0], amsl0, self.height, idle=prime)
-                    self._home_after_takeoff()
             assert self.last_pos is not None
             oz = self.ground_z or 0.0
             origin = (self.last_pos.x - ref0.fx[0], self.last_pos.y - ref0.fy[0])

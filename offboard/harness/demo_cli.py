@@ -101,8 +101,7 @@ def free_udp_port() -> int:
 
 class EmulatorThread:
     """The bundled emulator (``sim_bridge.emulator_cli.build``) running in a daemon thread. Defaults: the paper's
-    vehicle, rigid-body attitude, exact telemetry (no noise), no packet loss, no tlog, ideal sensors; ``ekf``: the
-    autopilot estimate's error model (``EmulatorConfig.ekf``: ``none`` or ``px4-sih``)."""
+    vehicle, rigid-body attitude, exact telemetry (no noise), no packet loss, no tlog, ideal sensors."""
 
     def __init__(
         self,
@@ -122,7 +121,6 @@ class EmulatorThread:
         signing_key: str | None = None,
         refuse: tuple[str, ...] = (),
         params: tuple[tuple[str, float], ...] = (),
-        ekf: str = "none",
     ) -> None:
         from sim_bridge.emulator_api import EmulatorConfig, build_emulator
         from sim_bridge.emulator_cli import parse_signing_key
@@ -148,7 +146,6 @@ class EmulatorThread:
             signing_key=parse_signing_key(signing_key) if signing_key else None,
             refuse=refuse,
             params=params,
-            ekf=ekf,
         )
         self.emu, self.ap, self.link = build_emulator(self.config)
         self.error: BaseException | None = None
