@@ -8,7 +8,7 @@ at the end point for ``--duration`` s. The emulator always streams its cable-ang
 has none, so the loop's decoder drops it here and the filter estimates the swing from the IMU alone. Prints the true
 swing (the emulator's plant) and the estimate over the take-over.
 
-    python bench/emulator_takeover.py [--line 10] [--move 4] [--duration 40] [--out DIR]
+    python bench/emulator_takeover.py [--line 10] [--move 4] [--duration 40] [--flavour ardupilot|px4] [--out DIR]
 """
 
 from __future__ import annotations
@@ -52,6 +52,7 @@ def main() -> int:
     ap.add_argument("--line", type=float, default=10.0, help="line length, m")
     ap.add_argument("--move", type=float, default=4.0, help="the stock move's duration (10 m), s")
     ap.add_argument("--duration", type=float, default=40.0, help="slung's hover after the take-over, s")
+    ap.add_argument("--flavour", choices=("ardupilot", "px4"), default="ardupilot", help="the emulated autopilot")
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
     out = a.out or Path(tempfile.mkdtemp(prefix="emulator-takeover-"))
@@ -71,7 +72,7 @@ def main() -> int:
              *("--no-figures", "--settle", "0", "--out", str(folder), *extra)]
         )  # fmt: skip
 
-    emu = EmulatorThread("ardupilot", port, lockstep=True, period=0.004, vehicle=str(veh), sensors="px4-typical")
+    emu = EmulatorThread(a.flavour, port, lockstep=True, period=0.004, vehicle=str(veh), sensors="px4-typical")
     emu.start()
     try:
         move = rest_to_rest((0.0, 0.0, h), (10.0, 0.0, h), 1.0, a.move)
