@@ -69,6 +69,7 @@ from estimators.filters.measured_model import (
     Gyro,
     MeasuredTuning,
     channel_floors,
+    for_line,
     thrust_window,
 )
 from estimators.filters.measured_predict import MeasuredPrediction
@@ -97,7 +98,7 @@ class MeasuredKalmanEstimator(MeasuredPrediction, MeasuredUpdates, RecordFusion)
         self.vehicle = vehicle
         #: how many pushed commands the acceleration input's gate looks back over (imu_timeout_s of them)
         self._n_thrust = thrust_window(tuning, rate_hz)
-        self.tuning = tn = tuning
+        self.tuning = tn = for_line(tuning, vehicle.cable_length)
         self.delay = float(delay_s)
         self.k = flat_constants(vehicle)
         self.has_load = vehicle.mass_load > 0.0

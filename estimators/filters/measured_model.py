@@ -9,7 +9,7 @@ Shared by the filter's public class (``measured_kf``), its prediction (``measure
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 from estimators.filters.fusion import BlockState, MeasurementNoise
@@ -71,6 +71,30 @@ class MeasuredTuning(MeasurementNoise):
 #: ``smc-attitude`` rows of compare / sweep (``registry.filter_tuning``) and ``--external-feedforward`` (sim, fly,
 #: demo; replay rebuilds it)
 FEEDFORWARD_TUNING = MeasuredTuning(external_feedforward=True)
+
+
+#: the line length the swing's noise densities and prior rate are set for (every shipped vehicle's is 0.3-1 m), m
+LINE_REFERENCE_M = 1.0
+
+
+def for_line(tuning: MeasuredTuning, cable_length: float) -> MeasuredTuning:
+    """``tuning`` as a filter on a line of ``cable_length`` m uses it: unchanged up to ``LINE_REFERENCE_M``; beyond,
+    with ``r = cable_length / LINE_REFERENCE_M``, the swing acceleration the model misses ``q_a / r^2`` (the same
+    unmodelled acceleration of the load, m/s^2, is an ``l``-times smaller angular one), the external acceleration's
+    random walk ``q_e / r`` (its density at the pendulum frequency, ``q_e / w^2`` with ``w^2 ~ g / l``, stays what it
+    is at 1 m, so that it does not absorb the slower swing) and the prior swing rate ``prior_swing_rate / sqrt(r)``
+    (the same amplitude swinging at the slower ``w``). With the 1 m densities a 30 m line's estimate, started at 0
+    on a load swinging 8 deg, wandered 10-20 deg/s off and the law chased it (docs/estimation.md, lines 0.5-30 m).
+    The one place the line scales the tuning: every implementation of the filter builds on its result."""
+    r = cable_length / LINE_REFERENCE_M
+    if not r > 1.0:
+        return tuning
+    return replace(
+        tuning,
+        q_a=tuning.q_a / (r * r),
+        q_e=tuning.q_e / r,
+        prior_swing_rate=tuning.prior_swing_rate / math.sqrt(r),
+    )
 
 
 def channel_floors(tuning: MeasuredTuning) -> dict[str, float]:
@@ -165,6 +189,7 @@ class Channel:
 __all__ = [
     "FEEDFORWARD_TUNING",
     "KIN",
+    "LINE_REFERENCE_M",
     "RATE",
     "SWING",
     "Block",
@@ -172,5 +197,6 @@ __all__ = [
     "Gyro",
     "MeasuredTuning",
     "channel_floors",
+    "for_line",
     "thrust_window",
 ]

@@ -42,7 +42,7 @@ class VehicleFileError(UserError, ValueError):
 PLAUSIBLE: dict[str, tuple[float, float, str]] = {
     "mass_vehicle": (0.01, 100.0, "kg"),
     "mass_load": (0.0, 50.0, "kg"),
-    "cable_length": (0.05, 20.0, "m"),
+    "cable_length": (0.05, 30.0, "m"),  # 30 m: the longest line flown (docs/model.md, lines 0.5-30 m)
     "gravity": (1.0, 30.0, "m/s^2"),
     "arm_length": (0.01, 5.0, "m"),
     "yaw_moment_coefficient": (1e-4, 0.5, "m"),

@@ -51,6 +51,10 @@ from offboard.control.nominal_demands import demand_grid, nominal_profile, profi
 #: on (``F'' = -g a``, i.e. ``tan a ~ a``; ``F = x + l a``, i.e. ``sin a ~ a``) are off by more than a few percent:
 #: at 0.35 rad (20 deg) ``tan a`` exceeds ``a`` by 4.2 % and ``sin a`` falls short of it by 2.0 %.
 LINEARIZATION_WARN_RAD = 0.35
+#: The load's height above the take-off point (the ground) below which a reference is warned about, m: the vehicle's
+#: height error and the swing's bounce take about this much (ArduPilot SITL: a 2 m line flown at 2 m left its load
+#: on the ground for 35 % of the control time, and nothing said so; issue 38). Below 0 the load is on the ground.
+LOAD_CLEARANCE_M = 0.2
 #: Fraction of a hard limit above which a demand is reported as a warning (limits without a better-founded margin).
 WARN_FRACTION = 0.8
 
@@ -327,6 +331,17 @@ def _evaluate(ts: np.ndarray, J: np.ndarray, v: Vehicle, lim: FeasibilityLimits,
         lower=True,
     )
     if m > 0.0:
+        add(
+            "load_height",
+            "load's height above the take-off point",
+            "m",
+            p["load_height"],
+            0.0,
+            LOAD_CLEARANCE_M,
+            f"within {LOAD_CLEARANCE_M:g} m of the ground (the take-off point) with a {v.cable_length:g} m line: the "
+            "load may touch down and the line go slack; fly higher",
+            lower=True,
+        )
         mg = m * g
         add(
             "tension",
@@ -386,6 +401,7 @@ def peaks(result: FeasibilityResult, names: Sequence[str]) -> dict[str, float]:
 
 __all__ = [
     "LINEARIZATION_WARN_RAD",
+    "LOAD_CLEARANCE_M",
     "Demand",
     "FeasibilityLimits",
     "FeasibilityResult",

@@ -166,9 +166,13 @@ def profile(ts: np.ndarray, J: np.ndarray, v: Vehicle) -> dict[str, np.ndarray]:
     kx, ky, kz = tau_phi / (4.0 * arm), tau_theta / (4.0 * arm), tau_psi / (4.0 * v.yaw_moment_coefficient)
     motors = np.stack([thrust / 4.0 + sx * kx + sy * ky + sz * kz for sx, sy, sz in zip(_SX, _SY, _SZ)], axis=1)
 
+    # the load's height above the take-off point (the reference's heights are above it): z - l cos|a|
+    load_height = J[:, 2, 0] - l * np.cos(swing)
+
     return {
         "t": ts,
         "swing": swing,
+        "load_height": load_height,
         "alpha_y": a[:, 0],
         "alpha_x": a[:, 1],
         "theta": t1,

@@ -197,9 +197,10 @@ def add_flight_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None
     p.add_argument(
         "--tracking-limit",
         type=positive_float,
-        default=2.0,
+        default=None,
         metavar="M",
-        help="supervision: end the flight (hold) when the load's estimated position error exceeds M m (default 2)",
+        help="supervision: end the flight (hold) when the load's estimated position error exceeds M m (default 2 m "
+        "plus what a swing at --swing-limit moves the load: 2 + l sin(swing limit))",
     )
     p.add_argument(
         "--latency-limit",

@@ -54,7 +54,7 @@ from offboard.flight.loop import (
 )
 from offboard.flight.loop_records import LIVE_COLUMNS
 from offboard.flight.status import FlightStatus
-from offboard.flight.supervisor import exit_code
+from offboard.flight.supervisor import exit_code, tracking_limit_for
 from offboard.logs.runlog import Scenario
 from offboard.logs.timeseries_file import LIVE_LOG_NAME, TableStreamer
 from offboard.outputs import prepare_output_dir, write_json_atomic
@@ -147,9 +147,17 @@ def check_reference_bounds(scenario: Scenario, duration: float) -> None:
 
 
 def build_loop_config(
-    args: argparse.Namespace, lockstep: bool, takeoff: bool = True, inject: tuple[tuple[str, float, float], ...] = ()
+    args: argparse.Namespace,
+    lockstep: bool,
+    takeoff: bool = True,
+    inject: tuple[tuple[str, float, float], ...] = (),
+    cable_length: float = 1.0,
 ) -> LoopConfig:
-    """LoopConfig from the options; UserError for values out of range."""
+    """LoopConfig from the options; UserError for values out of range. ``cable_length`` (m) scales the default
+    tracking limit (:func:`~offboard.flight.supervisor.tracking_limit_for`)."""
+    tracking = getattr(args, "tracking_limit", None)
+    if tracking is None:
+        tracking = tracking_limit_for(cable_length, args.swing_limit)
     cfg = LoopConfig(
         rate_hz=args.rate,
         lockstep=lockstep,
@@ -159,7 +167,7 @@ def build_loop_config(
         settle_s=getattr(args, "settle", 5.0),
         settle_swing_rad=getattr(args, "settle_swing", 0.05),
         divergence_m=args.divergence_limit,
-        tracking_limit_m=getattr(args, "tracking_limit", 2.0),
+        tracking_limit_m=tracking,
         latency_limit_s=getattr(args, "latency_limit", DEFAULT_LATENCY_LIMIT_S),
         base_filter_delay_s=ESTIMATOR_DELAY_S,
         end_action=args.end,
@@ -201,7 +209,8 @@ def fly(
     vehicle = load_vehicle(args.vehicle)
     scenario, duration = make_reference(args) if scenario is None else (scenario, scenario.duration)
     check_reference_bounds(scenario, duration)
-    cfg = build_loop_config(args, lockstep, takeoff, inject)
+    line = vehicle.cable_length if vehicle.mass_load > 0.0 else 0.0  # no load: no swing to allow for
+    cfg = build_loop_config(args, lockstep, takeoff, inject, line)
     asked_law = getattr(args, "law", "auto")
     args.law = resolve_law(asked_law, args.output, vehicle)
     law = args.law

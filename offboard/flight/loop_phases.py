@@ -169,13 +169,16 @@ class FlightPhases:
     def fix_ground(self) -> None:
         """Fix :attr:`ground_z`, the take-off point's local z, once, before the take-off decision.
 
-        On the ground (the autopilot's height above home under 0.3 m, or unknown) with a take-off to fly: the mean
-        of the last position samples, where the vehicle sits. In the air (``--no-takeoff``, or a vehicle already
-        flying): home as the autopilot reports it, the median of ``local z - relative_alt``. Without
+        On the ground (disarmed, or the autopilot's height above home under 0.3 m or unknown) with a take-off to
+        fly: the mean of the last position samples, where the vehicle sits. In the air (``--no-takeoff``, or a
+        vehicle already flying): home as the autopilot reports it, the median of ``local z - relative_alt``. Without
         GLOBAL_POSITION_INT in the air: local z itself, with a warning."""
         if self.ground_z is not None:
             return
-        airborne = self.rel_alt is not None and self.rel_alt > 0.3
+        # disarmed is on the ground whatever the height above home says: after a landing PX4 SITL's relative_alt
+        # stayed 0.4-1.1 m (its home wandering), and the ground was taken from that home, 0.5-1 m off
+        armed = self.conn.vehicle is not None and bool(self.conn.vehicle.armed)
+        airborne = self.rel_alt is not None and self.rel_alt > 0.3 and armed
         if self.cfg.takeoff and not airborne and self._z_samples:
             zs = list(self._z_samples)
             mean = sum(zs) / len(zs)

@@ -17,6 +17,7 @@ from estimators.model.control_state import ControlState
 from offboard.control.controllers.sliding_mode import law_for
 from offboard.control.tick import ActuatorLag, ControlTick
 from offboard.flight.command_mapping import setpoint_fields
+from offboard.flight.load_ground import LoadGroundWatch
 from offboard.flight.loop_link import FlightAbortError
 from offboard.flight.setpoint_echo import ATTITUDE_IGNORE
 from offboard.flight.tick_pacing import TickPacer
@@ -80,6 +81,7 @@ class TickLoop:
         period = self.period
         lockstep = cfg.lockstep
         oz = self.ground_z or 0.0  # heights of the reference are above the take-off point
+        load_watch = LoadGroundWatch(self.vehicle.cable_length, oz) if self.vehicle.mass_load > 0.0 else None
         mapper = self.mapper
         controller = self.controller
         probe = self.truth_probe
@@ -212,6 +214,8 @@ class TickLoop:
                 prefuse(t_v + prefuse_ahead)
             self._report_dropped()  # off the path to the setpoint: a few counter reads
             self._check_swing(est)
+            if load_watch is not None and (ground := load_watch.update(est)) is not None:
+                self.event(*ground)  # a warning line and events.json (offboard.flight.load_ground)
             last_est = est
             v = self.supervisor.check_tracking(est.fx[0] - rfx[0], est.fy[0] - rfy[0], est.z - rz[0])
             if v is not None:

@@ -24,7 +24,8 @@ vehicle reports while the loop is in control ends the flight, with its reason:
   about once in 50 000. Meanwhile the loop streams its setpoints, which a vehicle not in the mode ignores (it holds
   where it is, and the tracking watchdog still ends the flight);
 - ``tracking_error``: the load's position error (estimated flat output against the reference) above
-  ``tracking_limit_m``; the vehicle is then handed to its hold mode by the loop.
+  ``tracking_limit_m``; the vehicle is then handed to its hold mode by the loop. Its default scales with the line
+  (:func:`tracking_limit_for`): a load on 30 m moves metres for a swing the swing watchdog allows.
 
 STATUSTEXT and COMMAND_ACK messages are recorded as they arrive (``notes``): the autopilot's own words (e.g.
 "Failsafe activated: offboard signal lost") and acknowledgements of commands the loop did not send (a
@@ -107,6 +108,19 @@ ARDUPILOT_MODE_NAMES = {
     20: "GUIDED_NOGPS",
     21: "SMART_RTL",
 }
+
+
+#: the vehicle's share of the default tracking limit, m (the whole limit before lines longer than 1 m were flown)
+TRACKING_VEHICLE_M = 2.0
+
+
+def tracking_limit_for(cable_length: float, swing_limit_rad: float) -> float:
+    """The default load-position error that ends a flight, m: ``TRACKING_VEHICLE_M`` for the vehicle plus what a
+    swing up to the swing watchdog's limit moves the load, ``l sin(swing_limit)``. The swing itself is the swing
+    watchdog's to judge; this one catches the vehicle leaving the reference. A fixed 2 m ended every flight of a
+    10-30 m line whose load swung 0.07-0.2 rad (0.7-6 m), e.g. a take-over of a swinging load.
+    ``cable_length``: m; ``swing_limit_rad``: rad."""
+    return TRACKING_VEHICLE_M + cable_length * math.sin(min(swing_limit_rad, 0.5 * math.pi))
 
 
 def exit_code(ended_by: str) -> int:
@@ -287,9 +301,11 @@ __all__ = [
     "EXIT_TAKEN_OVER",
     "EXIT_USER_ERROR",
     "SUPERVISED_MESSAGES",
+    "TRACKING_VEHICLE_M",
     "Note",
     "Supervisor",
     "Verdict",
     "exit_code",
     "mode_name",
+    "tracking_limit_for",
 ]

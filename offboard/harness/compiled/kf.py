@@ -30,7 +30,7 @@ import numpy as np
 
 from estimators.filters.fusion import chi2_quantile
 from estimators.filters.measured_kf import MeasuredTuning, thrust_window
-from estimators.filters.measured_model import channel_floors
+from estimators.filters.measured_model import channel_floors, for_line
 from estimators.model.flatness import flat_constants
 from estimators.model.vehicle import Vehicle
 from offboard.harness.compiled.layout import (
@@ -143,7 +143,7 @@ def kf_constants(
         raise ValueError("the compiled filter needs a nominal vehicle with a load")
     if not tuning.tilt_command:  # (C_TILT_COMMAND is recorded, not read: the kernels have no white-n'' branch)
         raise ValueError("the compiled filter always takes the commanded tilt acceleration (tuning.tilt_command)")
-    tn = tuning
+    tn = for_line(tuning, vehicle.cable_length)
     k = flat_constants(vehicle)
     c = np.full(C_SIZE, np.nan)
     c[C_I_PHI], c[C_I_THETA] = vehicle.inertia[0], vehicle.inertia[1]
