@@ -80,6 +80,7 @@ from offboard.control.tick import ActuatorLag, ControlTick
 from offboard.flight.attitude_mapping import inner_loop_of
 from offboard.flight.command_mapping import CommandMapper, setpoint_fields
 from offboard.flight.latency import LinkLatency
+from offboard.flight.link.autopilot_model import choose_hover_throttle
 from offboard.flight.link.connection import MavConnection
 from offboard.flight.link.management import Manager, custom_mode
 from offboard.flight.link.setpoints import SetpointError, encode, encode_position
@@ -509,7 +510,10 @@ class FlightLoop:
         self._read()
 
     def _prime(self, seconds: float) -> None:
-        """Stream hover setpoints for ``seconds`` of vehicle time (PX4 needs the stream before the switch)."""
+        """Stream hover setpoints for ``seconds`` of vehicle time (PX4 needs the stream before the switch; ArduPilot,
+        0 s, does not, and nothing is said)."""
+        if seconds <= 0.0:
+            return
         start = self._now_vehicle()
         n = 0
         while self._now_vehicle() - start < seconds:
@@ -576,7 +580,7 @@ class FlightLoop:
     def _reread_hover_throttle(self) -> None:
         """After the take-off and the hold at the start, read the hover throttle again (ArduPilot learns
         MOT_THST_HOVER in flight, with the load on) and map thrust with it from now on."""
-        h = self.mgr.read_hover_throttle()
+        h = choose_hover_throttle(self.mgr.flavour, self.mgr.read_hover_throttle(), self.vehicle)[0]
         before = self.mapper.autopilot.hover_thrust_norm
         if h is None or h == before:
             return
