@@ -130,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
                 where = out / f"slung-{a.reference}-{d:g}m-{t:g}s"
                 t0, t1, end = fly_slung(sitl, d, t, a.height, where, a.slung_arg, a.reference)
                 fig = None
-                if t0 is not None and t1 is not None:
+                if t0 is not None and t1 is not None and t1 > t0 + REST_S:  # else it ended before the move
                     log = read_dataflash(sitl.dataflash_logs()[-1])
                     fig = move_figures(log, t0 + REST_S, min(t1, t0 + REST_S + t + AFTER_S), d)
                 rows.append(row(f"slung {a.reference}, {label}", fig, end))
