@@ -14,7 +14,8 @@ it: **T** from the move's start until the vehicle stays within 0.2 m of the goal
 SIM2); **peak** the largest swing (SLUP) from the start to arrival; **bound** ``atan(4 D / (g T^2))`` at that T;
 **residual** the largest swing 2-12 s after arrival; **overshoot** past the goal along the move; **tilt** ArduPilot's
 ATT over the move. slung's move starts ``REST_S`` after its control starts (its tick log's first ``t_vehicle``);
-stock's when its target is sent.
+stock's when its target is sent. slung's **end** says how its flight ended and the loop rate it achieved (of 250 Hz):
+on a loaded machine a starved loop flies worse.
 
     flock /tmp/ardupilot-instance0.lock python bench/ardupilot_payload_moves.py [--moves 3:2.5,3:3,3:4,10:6]
         [--height 2] [--only slung|stock] [--reference waypoints|move] [--slung-arg=--law --slung-arg=torque]
@@ -85,7 +86,9 @@ def fly_slung(
     if not metrics.is_file():
         last = proc.stderr.strip().splitlines()[-1:] or [f"exit {proc.returncode}"]
         return None, None, f"refused: {last[0]}"
-    ended = json.loads(metrics.read_text())["flight"]["ended_by"]
+    m = json.loads(metrics.read_text())
+    # the loop rate it achieved: a starved loop (a loaded machine) flies worse, and the table says so
+    ended = f"{m['flight']['ended_by']} ({m['loop']['rate_hz_achieved']:.0f} Hz)"
     t = np.genfromtxt(out / "fly" / "timeseries_live.csv", delimiter=",", names=True)["t_vehicle"]
     return float(t[0]), float(t[-1]), ended
 
