@@ -18,58 +18,13 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 
-def _move(data: dict, where: str) -> Composite:
-    """kind = "move": ``distance`` m towards ``direction_deg`` (from x, towards y; default 0), arriving ``arrive_by`` s
-    after ``t_start`` (default 2 s of rest), then ``hold`` s (default 15); from (``x``, ``y``) at height ``z``.
-    ``ramp`` (a fraction of the move's time, 0 < ramp <= 0.25) fixes the corners; without it ``slung fly`` plans them
-    against the vehicle (``offboard.control.reference_move.plan_move``)."""
-    from offboard.control.reference_move import RAMPS, MoveReference, MoveSpec
-
-    spec = MoveSpec(
-        distance=_finite(f"{where}: distance", _need(where, data, "distance")),
-        arrive_by=_finite(f"{where}: arrive_by", _need(where, data, "arrive_by")),
-        direction=math.radians(data.get("direction_deg", 0.0)),
-        x=data.get("x", 0.0),
-        y=data.get("y", 0.0),
-        z=_finite(f"{where}: z", _need(where, data, "z")),
-        psi=_file_psi(where, data),
-        t_start=data.get("t_start", 2.0),
-        hold=data.get("hold", 15.0),
-    )
-    for name in ("distance", "arrive_by"):
-        if not getattr(spec, name) > 0.0:
-            raise TrajectoryError(f"{where}: {name} must be > 0, got {getattr(spec, name)!r}")
-    for name in ("t_start", "hold"):
-        if getattr(spec, name) < 0.0:
-            raise TrajectoryError(f"{where}: {name} must be >= 0 s, got {getattr(spec, name)!r}")
-    ramp = data.get("ramp")
-    try:
-        return MoveReference(spec, RAMPS[-1] if ramp is None else ramp, spec.arrive_by, ramp_given=ramp is not None)
-    except TrajectoryError as exc:
-        raise TrajectoryError(f"{where}: {exc}") from None
-
-
 # --------------------------------------------------------------------------------------------------------------
 # trajectory files
 # --------------------------------------------------------------------------------------------------------------
-_KINDS = ("waypoints", "hover", "circle", "figure_eight", "move")
+_KINDS = ("waypoints", "hover", "circle", "figure_eight")
 _KEYS = {
     "waypoints": {"kind", "t_start", "speed", "segment_times", "yaw_rate", "min_segment_time", "shape", "waypoint"},
     "hover": {"kind", "x", "y", "z", "psi", "psi_deg"},
-    "move": {
-        "kind",
-        "distance",
-        "arrive_by",
-        "direction_deg",
-        "x",
-        "y",
-        "z",
-        "psi",
-        "psi_deg",
-        "t_start",
-        "hold",
-        "ramp",
-    },
     "circle": {"kind", "center", "radius", "period", "z", "t_start", "ramp_time", "laps", "psi", "psi_deg"},
     "figure_eight": {
         "kind",
@@ -112,8 +67,6 @@ def _reference_from_table(data: dict, where: str) -> Composite:
     for k, v in num.items():
         if k != "laps":
             _finite(f"{where}: {k}", v)
-    if kind == "move":
-        return _move(data, where)
     if kind == "hover":
         return hover(_need(where, data, "x"), _need(where, data, "y"), _need(where, data, "z"), _file_psi(where, data))
     if kind in ("circle", "figure_eight"):

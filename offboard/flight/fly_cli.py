@@ -49,7 +49,6 @@ from offboard.flight.loop import (
     LoopConfig,
     TruthProbe,
 )
-from offboard.flight.move_planning import plan_user_move
 from offboard.flight.status import FlightStatus
 from offboard.flight.supervisor import exit_code
 from offboard.logs.runlog import Scenario
@@ -220,7 +219,6 @@ def fly(
     else:
         mapper = CommandMapper(vehicle, mapping, AutopilotModel())
     # the nominal feasibility check is the torque-level one: thrust and torque the vehicle can give, for either law
-    scenario = plan_user_move(scenario, vehicle, torque_params, mapper, cfg, args, quiet)
     feasibility = check_feasibility(scenario, duration, vehicle, torque_params, mapper, cfg, args, quiet)
     tlog_path = out_dir / "flight.tlog"
     signing = signing_config(args)
