@@ -4,7 +4,7 @@
 For each move "D m in T s" at ``--height`` (2 m), one SITL boot flies, one after the other:
 
 - **slung**: ``slung fly --vehicle ardupilot-sitl-quad`` on waypoints (rest ``REST_S``, D m north in T s, rest
-  ``AFTER_S``; ``--reference move``: the same as a ``kind = "move"`` file), ``--end land``, ``--stale-limit 0.25``
+  ``AFTER_S``), ``--end land``, ``--stale-limit 0.25``
   (as the tests: a shared machine), plus any ``--slung-arg``;
 - **stock**: GUIDED take-off, a hold until the load settles, one position target D m north
   (``sim_bridge.sitl.ardupilot_guided``): ArduPilot's own position controller and limits, no swing damping; LAND.
@@ -18,8 +18,7 @@ stock's when its target is sent. slung's **end** says how its flight ended and t
 on a loaded machine a starved loop flies worse.
 
     flock /tmp/ardupilot-instance0.lock python bench/ardupilot_payload_moves.py [--moves 3:2.5,3:3,3:4,10:6]
-        [--height 2] [--only slung|stock] [--reference waypoints|move] [--slung-arg=--law --slung-arg=torque]
-        [--out DIR]
+        [--height 2] [--only slung|stock] [--slung-arg=--law --slung-arg=torque] [--out DIR]
 
 Prints the table and writes ``DIR/moves.json`` (every figure, in SI units). Runs about 90 s per move and 45 s of boot.
 """
@@ -57,25 +56,19 @@ def parse_moves(text: str) -> list[tuple[float, float]]:
     return out
 
 
-def trajectory(distance: float, duration: float, height: float, kind: str = "waypoints") -> str:
-    """The slung trajectory file of one move (model frame: x north): waypoints (the polynomial step), or a ``move``
-    (the rounded bang-bang profile, ``offboard.control.reference_move``, its corners planned by ``slung fly``)."""
-    if kind == "move":
-        return (
-            f'kind = "move"\ndistance = {distance:g}\narrive_by = {duration:g}\nz = {height:g}\n'
-            f"t_start = {REST_S:g}\nhold = {AFTER_S:g}\n"
-        )
+def trajectory(distance: float, duration: float, height: float) -> str:
+    """The slung waypoints of one move (model frame: x north)."""
     pts = ((0.0, 0.0), (REST_S, 0.0), (REST_S + duration, distance), (REST_S + duration + AFTER_S, distance))
     return "".join(f"[[waypoint]]\nt = {t:g}\nx = {x:g}\ny = 0.0\nz = {height:g}\n" for t, x in pts)
 
 
 def fly_slung(
-    sitl: ArduPilotSitl, distance: float, duration: float, height: float, out: Path, extra: list[str], kind: str
+    sitl: ArduPilotSitl, distance: float, duration: float, height: float, out: Path, extra: list[str]
 ) -> tuple[float | None, float | None, str]:
     """One slung flight: (control start, control end (boot s), end) or (None, None, why) when it did not fly."""
     out.mkdir(parents=True, exist_ok=True)
     traj = out / "trajectory.toml"
-    traj.write_text(trajectory(distance, duration, height, kind), encoding="utf-8")
+    traj.write_text(trajectory(distance, duration, height), encoding="utf-8")
     cmd = [sys.executable, "-m", "offboard.cli", "fly", "--connect", sitl.connection_url]
     cmd += ["--vehicle", "ardupilot-sitl-quad", "--trajectory", str(traj), "--no-figures", "--end", "land"]
     # the SITL and this loop share a machine with other work: the staleness watchdog of the tests (test_ardupilot_sitl)
@@ -110,12 +103,6 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--moves", default="3:2.5,3:3,3:4,10:6", help="D:T pairs, metres:seconds (default %(default)s)")
     p.add_argument("--height", type=float, default=2.0, help="flight height above take-off, m (default 2)")
     p.add_argument("--only", choices=("slung", "stock"), help="fly only one of the two")
-    p.add_argument(
-        "--reference",
-        choices=("waypoints", "move"),
-        default="waypoints",
-        help="slung's reference: waypoints (the polynomial step, default) or move (the rounded bang-bang profile)",
-    )
     p.add_argument("--slung-arg", action="append", default=[], help="one more argument for slung fly (repeatable)")
     p.add_argument("--out", type=Path, help="where the flights and moves.json go (default a new temporary folder)")
     a = p.parse_args(argv)
@@ -130,13 +117,12 @@ def main(argv: list[str] | None = None) -> int:
         for d, t in moves:
             label = f"{d:g} m in {t:g} s"
             if a.only != "stock":
-                where = out / f"slung-{a.reference}-{d:g}m-{t:g}s"
-                t0, t1, end = fly_slung(sitl, d, t, a.height, where, a.slung_arg, a.reference)
+                t0, t1, end = fly_slung(sitl, d, t, a.height, out / f"slung-{d:g}m-{t:g}s", a.slung_arg)
                 fig = None
                 if t0 is not None and t1 is not None and t1 > t0 + REST_S:  # else it ended before the move
                     log = read_dataflash(sitl.dataflash_logs()[-1])
                     fig = move_figures(log, t0 + REST_S, min(t1, t0 + REST_S + t + AFTER_S), d)
-                rows.append(row(f"slung {a.reference}, {label}", fig, end))
+                rows.append(row(f"slung, {label}", fig, end))
                 results.append({"who": "slung", "D": d, "T": t, "end": end, **(fig.as_dict() if fig else {})})
                 print(rows[-1], flush=True)
             if a.only != "slung":
