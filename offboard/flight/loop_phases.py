@@ -22,6 +22,7 @@ from estimators.model.vehicle import Vehicle
 from offboard.control import smc, smc_attitude
 from offboard.control.delay_margin import gain_scale, loop_delay
 from offboard.flight.command_mapping import CommandMapper
+from offboard.flight.link.autopilot_model import choose_hover_throttle
 from offboard.flight.loop_link import FlightAbortError
 from offboard.flight.start_checks import offset_and_noise, settled, standard_error
 
@@ -237,7 +238,10 @@ class FlightPhases:
         self._read()
 
     def _prime(self, seconds: float) -> None:
-        """Stream hover setpoints for ``seconds`` of vehicle time (PX4 needs the stream before the switch)."""
+        """Stream hover setpoints for ``seconds`` of vehicle time (PX4 needs the stream before the switch; ArduPilot,
+        0 s, does not, and nothing is said)."""
+        if seconds <= 0.0:
+            return
         start = self._now_vehicle()
         n = 0
         while self._now_vehicle() - start < seconds:
@@ -304,7 +308,7 @@ class FlightPhases:
     def _reread_hover_throttle(self) -> None:
         """After the take-off and the hold at the start, read the hover throttle again (ArduPilot learns
         MOT_THST_HOVER in flight, with the load on) and map thrust with it from now on."""
-        h = self.mgr.read_hover_throttle()
+        h = choose_hover_throttle(self.mgr.flavour, self.mgr.read_hover_throttle(), self.vehicle)[0]
         before = self.mapper.autopilot.hover_thrust_norm
         if h is None or h == before:
             return

@@ -206,6 +206,8 @@ def move_figures(
     along = (pos["pn"] - start_n) * hn + (pos["pe"] - start_e) * he
     cross = -(pos["pn"] - start_n) * he + (pos["pe"] - start_e) * hn
     after = pos.t >= t_start
+    if not np.any(after):
+        raise ValueError(f"{log.path}: the judged window {t_start:.2f}..{t_end:.2f} s holds nothing of the move")
     off = np.hypot(along - distance_m, cross)
     outside = np.nonzero(after & (off > ARRIVAL_RADIUS_M))[0]
     if len(outside) and outside[-1] == len(pos.t) - 1:

@@ -79,8 +79,8 @@ def autopilot_model_from_params(
 
     Rate-loop bandwidth per axis ``B = K_p tau_max / I`` (the rate P gain is in normalized torque per rad/s,
     normalized by ``unit_torque`` where PX4's allocator gives it, ``offboard.flight.px4_allocation``, else by the
-    vehicle file's maximum torque per axis); rate I/P ratio per axis; hover throttle (the vehicle file's where the
-    autopilot does not tell, a warning where the two differ by more than 10 %); ArduPilot's ATC_ANGLE_BOOST."""
+    vehicle file's maximum torque per axis); rate I/P ratio per axis; hover throttle (:func:`choose_hover_throttle`);
+    ArduPilot's ATC_ANGLE_BOOST."""
     say = warn if warn is not None else (lambda _msg: None)
     att, rate, rate_i, hover = _PARAMS[flavour]
     default = AutopilotModel(flavour=flavour)
@@ -100,16 +100,9 @@ def autopilot_model_from_params(
             bw[i] = r * tmax[i] / vehicle.inertia[i]
         else:
             say(f"{rate[i]} not readable: assuming a rate bandwidth of {bw[i]:g} 1/s")
-    h = get(hover)
-    hover_norm = vehicle.hover_throttle  # the vehicle file's, when the autopilot does not tell
-    if h is not None and 0.0 < h < 1.0:
-        hover_norm = h
-        mine = vehicle.hover_thrust_normalized
-        if abs(h - mine) > 0.1 * mine:
-            say(
-                f"{hover} = {h:.3f} differs from the vehicle file's hover thrust {mine:.3f} "
-                "(total weight / max thrust) by more than 10 %: check the vehicle file"
-            )
+    hover_norm, why = choose_hover_throttle(flavour, get(hover), vehicle)
+    if why is not None:
+        say(why)
     boost = angle_boost_default
     if flavour == "ardupilot":
         b = get("ATC_ANGLE_BOOST")
@@ -126,4 +119,45 @@ def autopilot_model_from_params(
     )
 
 
-__all__ = ["AutopilotModel", "autopilot_model_from_params"]
+def choose_hover_throttle(flavour: str, theirs: float | None, vehicle: Vehicle) -> tuple[float | None, str | None]:
+    """The hover throttle (0..1) to map thrust with, from the autopilot's parameter ``theirs`` (PX4 MPC_THR_HOVER,
+    ArduPilot MOT_THST_HOVER; None when it did not answer) and the vehicle file, and a warning when they disagree.
+
+    Like is compared with like: the autopilot's hover *throttle* with the file's ``hover_throttle`` (a throttle, with
+    this load); only a file without one is compared with its thrust fraction, total weight / max thrust, which is the
+    throttle on a linear thrust curve alone (ArduPilot's MOT_THST_EXPO 0.65 makes the SITL quad's loaded 0.51 a
+    thrust fraction of 0.348: the old warning compared 0.39 with 0.343 and fired on every flight).
+
+    Which one flies: the autopilot's, except on ArduPilot when the file gives a hover throttle more than 10 % away.
+    ArduPilot learns MOT_THST_HOVER only while its own altitude controller flies (MOT_HOVER_LEARN), so on the
+    ground, and after a take-off into attitude targets, it is the value of its last such flight, often without
+    this load (the SITL quad's 0.39 bare against 0.51 loaded: the vehicle sagged 13 cm at the start, issue 38);
+    PX4's MPC_THR_HOVER is what its own position controller flies with, so PX4's is kept."""
+    mine = vehicle.hover_throttle
+    if theirs is None or not (math.isfinite(theirs) and 0.0 < theirs < 1.0):
+        return mine, None
+    name = "MPC_THR_HOVER" if flavour == "px4" else "MOT_THST_HOVER"
+    if mine is None:
+        frac = vehicle.hover_thrust_normalized
+        if abs(theirs - frac) <= 0.1 * frac:
+            return theirs, None
+        return theirs, (
+            f"{name} = {theirs:.3f} differs by more than 10 % from the vehicle file's thrust fraction at hover "
+            f"{frac:.3f} (total weight / max thrust; the throttle only on a linear thrust curve): give the file a "
+            "hover_throttle, or check its masses and motor_thrust_max"
+        )
+    if abs(theirs - mine) <= 0.1 * mine:
+        return theirs, None
+    if flavour == "ardupilot":
+        return mine, (
+            f"{name} = {theirs:.3f} differs from the vehicle file's hover throttle {mine:.3f} by more than 10 %: "
+            "flying with the file's (ArduPilot learns its own only under its altitude controller, perhaps without "
+            "this load)"
+        )
+    return theirs, (
+        f"{name} = {theirs:.3f} differs from the vehicle file's hover throttle {mine:.3f} by more than 10 %: flying "
+        f"with the autopilot's; check the vehicle file"
+    )
+
+
+__all__ = ["AutopilotModel", "autopilot_model_from_params", "choose_hover_throttle"]

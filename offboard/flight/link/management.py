@@ -59,6 +59,14 @@ def custom_mode(flavour: str, role: str) -> int:
 
 Idle = Callable[[], None]
 
+#: streams asked for that an autopilot may rightly refuse, and what then still works: ArduPilot has no DEBUG_VECT
+#: stream of its own and refused the request on every flight (issue 38), while a cable-angle sensor's DEBUG_VECT is
+#: routed to the companion whatever the autopilot's streams
+OPTIONAL_STREAMS = {
+    "DEBUG_VECT": "a cable-angle sensor's own DEBUG_VECT is still read when it arrives; without one the filter "
+    "estimates the swing from the IMU",
+}
+
 
 #: a take-off command left unacknowledged is sent again (at most this many times) when the vehicle has not climbed
 #: above TAKEOFF_CLIMB_M (m above home) within TAKEOFF_CLIMB_WAIT_S (s)
@@ -101,11 +109,18 @@ class Manager:
 
     # ---------------------------------------------------------------------------------- configuration ---
     def request_streams(self, rates_hz: dict[str, float], idle: Idle | None = None) -> dict[str, int | None]:
-        """SET_MESSAGE_INTERVAL for each message name -> rate (Hz); returns the MAV_RESULT of each."""
+        """SET_MESSAGE_INTERVAL for each message name -> rate (Hz); returns the MAV_RESULT of each. A refusal is a
+        warning, except for the streams in :data:`OPTIONAL_STREAMS`, whose refusal is only noted."""
         out: dict[str, int | None] = {}
         for name, hz in rates_hz.items():
             out[name] = self.conn.set_message_interval(MESSAGE_IDS[name], hz, idle=idle)
-            if out[name] != MAV_RESULT_ACCEPTED:
+            if out[name] == MAV_RESULT_ACCEPTED:
+                continue
+            if name in OPTIONAL_STREAMS:
+                self.note(
+                    "streams", f"{name} not streamed by the autopilot (result {out[name]}): {OPTIONAL_STREAMS[name]}"
+                )
+            else:
                 self.warnings.append(f"autopilot did not accept {name} at {hz:g} Hz (result {out[name]})")
         self.note("streams", ", ".join(f"{k} {v:g} Hz" for k, v in rates_hz.items()))
         return out
@@ -323,4 +338,4 @@ class Manager:
         self.note("takeoff_done", f"height {height_now():.2f} m")
 
 
-__all__ = ["MODES", "ManagementEvent", "Manager", "custom_mode"]
+__all__ = ["MODES", "OPTIONAL_STREAMS", "ManagementEvent", "Manager", "custom_mode"]
