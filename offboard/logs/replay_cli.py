@@ -242,8 +242,9 @@ def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
     """Do the work of ``slung replay``; returns (exit code, metrics, report folder). Used by tests."""
     from offboard.logs import replay as rp
     from offboard.logs.log_formats import log_format_of, scan_dataflash, scan_ulog
+    from offboard.logs.replay_partial import PARTIAL_COLUMNS, partial_possible, replay_partial
     from offboard.logs.tlog import TlogReader
-    from offboard.outputs import prepare_output_dir, write_json_atomic
+    from offboard.outputs import prepare_output_dir, write_json_atomic, write_text_atomic
     from offboard.report.replay_report import format_summary, write_outputs
 
     path = Path(args.tlog)
@@ -281,6 +282,17 @@ def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
     inv = rp.inventory(sc)
     ok, reasons = rp.replayable(inv)
     print(f"log: {path} ({path.stat().st_size} bytes, {fmt})")
+    if not ok and partial_possible(inv, reasons):  # no horizontal position: replay what can be estimated
+        data, metrics = replay_partial(sc, inv, config.vehicle)
+        metrics["reader"] = rstats
+        metrics["speed"] = {"wall_s": time.perf_counter() - wall0}
+        write_json_atomic(out_dir / "metrics.json", metrics)
+        header = ",".join(PARTIAL_COLUMNS)
+        body = "\n".join(",".join(repr(float(v)) for v in row) for row in data)
+        write_text_atomic(out_dir / "timeseries.csv", header + "\n" + body + ("\n" if len(data) else ""))
+        print(format_summary(metrics, rstats))
+        print(f"report: {out_dir.resolve()}")
+        return 0, metrics, out_dir
     if not ok:
         metrics = {"log": inv, "reader": rstats, "replayed": False, "reasons": reasons}
         write_json_atomic(out_dir / "metrics.json", metrics)
