@@ -192,14 +192,20 @@ def _load_decision(
 ) -> tuple[Any, dict[str, Any]]:
     """Is a load attached (``offboard.logs.replay_load``: from the log's IMU and attitude, not from its name)? The
     vehicle the estimator then runs with (without a cable-angle sensor and without a load: the vehicle file's load
-    removed, so the filter has no swing states to diverge) and metrics.json's ``load`` block."""
+    removed, so the filter has no swing states to diverge; with a load: the identified mass and cable length in
+    place of the file's) and metrics.json's ``load`` block."""
     from offboard.logs.replay_load import identify_from_log, load_block
 
     ident = identify_from_log(events, ap, segments, vehicle)
     block = load_block(ident, vehicle, load_sensor)
     if ident is not None and not ident.attached and not load_sensor and vehicle.mass_load > 0.0:
         block["estimator_vehicle"] = "the vehicle file's load removed: no swing states"
-        return vehicle.with_changes(mass_load=0.0), block
+        vehicle = vehicle.with_changes(mass_load=0.0)
+    elif ident is not None and ident.attached and ident.mass_kg is not None and ident.cable_m is not None:
+        # the filter's pendulum is the one the log shows, not the vehicle file's guess
+        block["estimator_vehicle"] = "the identified load"
+        vehicle = vehicle.with_changes(mass_load=ident.mass_kg, cable_length=ident.cable_m)
+    block["estimator_load"] = {"mass_kg": vehicle.mass_load, "cable_m": vehicle.cable_length}
     return vehicle, block
 
 

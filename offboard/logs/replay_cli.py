@@ -320,14 +320,16 @@ def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
     span = result.metrics["estimation"].get("vehicle_time_span_s")
     log_s = (span[1] - span[0]) if span else 0.0
     result.metrics["speed"] = {"wall_s": wall, "log_s": log_s, "x_realtime": log_s / wall if wall > 0 else None}
-    write_outputs(
-        result, out_dir, figures=not args.no_figures, log_name=path.name, cable_length=config.vehicle.cable_length
-    )
+    # the cable the replay's filter used (the identified one, where the load identification found a load)
+    cable = ((result.metrics.get("load") or {}).get("estimator_load") or {}).get(
+        "cable_m"
+    ) or config.vehicle.cable_length
+    write_outputs(result, out_dir, figures=not args.no_figures, log_name=path.name, cable_length=cable)
     if not args.no_figures and len(result.data) > 1:
         from offboard.report.replay_report_html import write_replay_html
 
         title = f"slung replay: {path.name}, {config.vehicle.name} vehicle, kf estimator, {result.output} setpoints"
-        write_replay_html(result, out_dir, title, config.vehicle.cable_length)
+        write_replay_html(result, out_dir, title, cable)
     print(format_summary(result.metrics, rstats))
     print(f"replayed {log_s:.1f} s of flight in {wall:.2f} s ({log_s / max(wall, 1e-9):.0f}x real time)")
     print(f"report: {out_dir.resolve()}")
