@@ -143,7 +143,9 @@ def test_a_px4_sitl_ulog_flight_replays_through_the_same_estimator(
     seg = inv["airborne_segments"][0]
     assert 15.0 < seg["from_s"] < 25.0 and seg["to_s"] > 39.0
     assert est["ticks"] > 4900 and est["position_vs_autopilot_m"]["rms"] < 2.0
-    assert est["swing_max_rad"] <= 0.5 and est["usable_ticks"] > 0.9 * est["ticks"]
+    assert est["usable_ticks"] > 0.9 * est["ticks"]
+    # SIH carries nothing: the IMU says so (offboard.logs.replay_load), and no swing is reported
+    assert m["load"]["attached"] is False and "swing_max_rad" not in est
     _no_unusable_number_printed(text)
 
 
@@ -170,17 +172,20 @@ def test_a_px4_tlog_on_the_ground_exits_3(tmp_path: Path, capsys: pytest.Capture
 def test_an_arducopter_dataflash_flight_stays_with_the_autopilot(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """ArduCopter 3.3 SITL DataFlash log (dronekit-la-testdata log171.bin, CC BY-SA 3.0): one airborne segment from
-    the NOT_LANDED event; the estimate within 2 m RMS of the EKF's position; the swing bounded (where the
-    sensorless estimate would pass a hanging load's limit the divergence is reported and the filter restarted)."""
-    path = shared_log("arducopter-sitl-dronekit-la-log171.bin")
-    code, m, text = _replay(path, tmp_path / "r", capsys, "--vehicle", "ardupilot-sitl-quad", "--to", "215")
+    """ArduCopter 3.3 DataFlash log of a real Pixhawk flight (dronekit-la-testdata log171.bin, CC BY-SA 3.0; not
+    SITL, shared/logs/SOURCES.md): one airborne segment from the NOT_LANDED event, cut where the vehicle flipped
+    over (238.9 s); the estimate within 2 m RMS of the EKF's position. The vehicle carried nothing and the IMU says
+    so: no swing states, no swing reported, no divergence (tests/test_replay_load.py has the other two logs)."""
+    path = shared_log("arducopter-pixhawk-dronekit-la-log171.bin")
+    code, m, text = _replay(path, tmp_path / "r", capsys, "--vehicle", "ardupilot-sitl-quad")
     inv, est = m["log"], m["estimation"]
     assert code == 0 and inv["log_format"] == "dataflash" and inv["ardupilot_firmware"] == "copter"
     assert inv["flight_modes"] == ["LOITER", "ACRO"] and len(inv["airborne_segments"]) == 1
     assert inv["airborne_segments"][0]["from_s"] == pytest.approx(82.8, abs=0.2)
     assert est["position_vs_autopilot_m"]["rms"] < 2.0 and est["height_vs_autopilot_m"]["rms"] < 2.0
-    assert est["swing_max_rad"] <= 1.2 and all(d["t_s"] > 82.0 for d in est["divergences"])
+    assert m["load"]["attached"] is False and "swing_max_rad" not in est
+    assert est["divergences"] == [] and est["diverged_ticks"] == 0
+    assert [f["t_s"] for f in est["flips"]] == [pytest.approx(238.9, abs=0.3)]
     _no_unusable_number_printed(text)
 
 
@@ -208,7 +213,8 @@ def test_the_px4_sitl_flight_as_dataflash_replays_like_its_ulog(
     seg = inv["airborne_segments"][0]
     assert 15.0 < seg["from_s"] < 25.0 and seg["to_s"] > 39.0
     assert est["ticks"] > 4900 and est["position_vs_autopilot_m"]["rms"] < 2.0
-    assert est["swing_max_rad"] <= 0.5 and est["usable_ticks"] > 0.9 * est["ticks"]
+    assert est["usable_ticks"] > 0.9 * est["ticks"]
+    assert m["load"]["attached"] is False and "swing_max_rad" not in est
     _no_unusable_number_printed(text)
 
     def runs(config: rp.ReplayConfig) -> tuple[np.ndarray, Callable[[str], np.ndarray]]:

@@ -238,8 +238,14 @@ def scan_ulog(path: Path) -> Scan:
         ts = (lp["timestamp"] * 1e-6).tolist()
         cols = [lp[k].tolist() for k in ("x", "y", "z", "vx", "vy", "vz")]
         valid = lp["xy_valid"].tolist() if "xy_valid" in lp else [1] * len(ts)
+        z_valid = lp["z_valid"].tolist() if "z_valid" in lp else [0] * len(ts)
         for i, t in enumerate(ts):
             if not valid[i]:
+                if z_valid[i]:  # the height alone (no GPS): kept for a replay of what can be estimated
+                    _, _, z = ned_to_model_vector(0.0, 0.0, cols[2][i])
+                    _, _, vz = ned_to_model_vector(0.0, 0.0, cols[5][i])
+                    if math.isfinite(z) and math.isfinite(vz):
+                        b.add("height", t, (t, z, vz))
                 continue
             x, y, z = ned_to_model_vector(cols[0][i], cols[1][i], cols[2][i])
             vx, vy, vz = ned_to_model_vector(cols[3][i], cols[4][i], cols[5][i])
@@ -270,8 +276,7 @@ def scan_ulog(path: Path) -> Scan:
                 b.add("mode", t, last_nav == PX4_NAV_STATE_OFFBOARD, 0)
         b.count("vehicle_status", len(ts), ts[0] if ts else None, ts[-1] if ts else None)
     if mav_type is None:
-        mav_type = 2
-        b.notes.append("the ULog does not say the vehicle type (vehicle_status.vehicle_type): taken as a multirotor")
+        mav_type = _ulog_vehicle_type(ulog, st, b)
     ld = _topic(ulog, "vehicle_land_detected")
     if ld is not None and "landed" in ld:
         last: int | None = None
@@ -282,6 +287,29 @@ def scan_ulog(path: Path) -> Scan:
                 last = state
         b.count("vehicle_land_detected", len(ld["timestamp"]))
     return b.scan(MAV_AUTOPILOT_PX4, mav_type)
+
+
+def _ulog_vehicle_type(ulog: Any, status: dict[str, Any] | None, b: _Builder) -> int:
+    """The vehicle type of a ULog whose vehicle_status has no ``vehicle_type`` (PX4 before 1.10): its ``MAV_TYPE``
+    parameter, else vehicle_status's ``is_rotary_wing``, else a multirotor; a note says which (never silently)."""
+    param = ulog.initial_parameters.get("MAV_TYPE") if hasattr(ulog, "initial_parameters") else None
+    if param is not None:
+        b.notes.append(
+            f"the ULog's vehicle_status has no vehicle_type: the vehicle type is its MAV_TYPE parameter ({int(param)})"
+        )
+        return int(param)
+    if status is not None and "is_rotary_wing" in status and len(status["is_rotary_wing"]):
+        rotary = bool(status["is_rotary_wing"][0])
+        b.notes.append(
+            "the ULog states no vehicle type (no vehicle_status.vehicle_type, no MAV_TYPE parameter): vehicle_status."
+            f"is_rotary_wing is {int(rotary)}, taken as {'a multirotor' if rotary else 'a fixed wing'}"
+        )
+        return 2 if rotary else 1
+    b.notes.append(
+        "the ULog states no vehicle type (no vehicle_status.vehicle_type, MAV_TYPE parameter or is_rotary_wing): "
+        "assumed a multirotor, unverified"
+    )
+    return 2
 
 
 def _scan_ulog_load_angles(ulog: Any, b: _Builder) -> None:

@@ -165,7 +165,8 @@ class Event:
     the vehicle's ``time_boot_ms``, the lockstep emulator's tick marker), "landed" (EXTENDED_SYS_STATE's
     MAV_LANDED_STATE), "armed" (the HEARTBEAT's armed flag changed: bool), "modename" (the flight mode changed:
     its name), "gpos" (GLOBAL_POSITION_INT of any system: latitude, longitude in degrees, altitude m AMSL; a
-    payload reporting as its own system gives the swing's truth).
+    payload reporting as its own system gives the swing's truth), "height" (a ULog's height alone, without a
+    horizontal position: (t, z m up, vz m/s up)).
     Events without a time field of their own (HEARTBEAT) carry the sender's latest vehicle time.
 
     sysid: sender; vt: vehicle/sender time field (s) or None; lt: logger time (s); payload: the record."""

@@ -119,7 +119,8 @@ def inventory(sc: Scan) -> dict[str, Any]:
     if by_kind["PositionVelocity"] == 0:
         missing.append(
             f"no local position ({names['position']}): the vehicle's position and velocity, "
-            "hence the flat outputs, cannot be estimated; not replayed"
+            "hence the flat outputs, cannot be estimated; with an IMU, only the attitude, the height and the load "
+            "identification are replayed"
         )
     if by_kind["LoadAngle"] == 0:
         if by_kind["Imu"] == 0:
@@ -127,7 +128,8 @@ def inventory(sc: Scan) -> dict[str, Any]:
         else:
             missing.append(
                 f"no cable-angle sensor (DEBUG_VECT {LOAD_ANGLE_NAME!r}): the swing is estimated from "
-                "the accelerometer only; whether a load is attached at all cannot be told from the log"
+                "the accelerometer only; whether a load is attached at all is identified from the IMU and "
+                "attitude (metrics.json 'load')"
             )
     return {
         "systems": systems,

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import bisect
 import contextlib
+import dataclasses
 import gc
 import math
 from collections.abc import Callable, Iterable, Iterator
@@ -38,11 +39,13 @@ from typing import Any
 
 import numpy as np
 
+from estimators.model.measurements import Attitude, Imu
 from offboard.flight.link.setpoints import ActuatorTarget, AttitudeTarget
 from offboard.logs.flight_modes import is_offboard_mode
 from offboard.logs.log_inventory import (
     Event,
     Scan,
+    Segment,
     SystemInfo,
     clock_jump,
     flight_segments,
@@ -150,6 +153,62 @@ def _find_start(
     return start, ticks, "no filter start reproduced the first setpoints: approximate"
 
 
+def _end_at_flip(
+    events: list[Event], ap: int | None, segments: list[Segment]
+) -> tuple[list[Segment], list[dict[str, Any]]]:
+    """Each airborne segment cut where the vehicle turned upside down (body z pointing below the horizon: a
+    flip, a crash): no multirotor flies that way, and the filter's model of a flying vehicle does not hold after it
+    (the autopilot may not notice the vehicle is on the ground). Returns the segments and the flips."""
+    out, flips = [], []
+    epoch, t_last = 0, -math.inf
+    firsts: dict[int, float] = {}
+    for e in events:
+        if e.kind != "m" or e.sysid != ap or not isinstance(e.payload, Attitude):
+            continue
+        m = e.payload
+        if clock_jump(m.t, t_last) is not None:
+            epoch += 1
+        t_last = m.t
+        if math.cos(m.phi) * math.cos(m.theta) < 0.0:
+            for i, sg in enumerate(segments):
+                if i not in firsts and sg.epoch == epoch and sg.t0 <= m.t <= sg.t1:
+                    firsts[i] = m.t
+    for i, sg in enumerate(segments):
+        if i in firsts:
+            flips.append({"t_s": firsts[i], "segment": i, "text": "the vehicle turned upside down: replay ends"})
+            if firsts[i] - sg.t0 > 1.0:
+                out.append(Segment(sg.epoch, sg.t0, firsts[i]))
+        else:
+            out.append(sg)
+    return out, flips
+
+
+#: below this logged IMU rate (Hz) a replay without a load leaves the accelerometer out (aliased vibration)
+MIN_IMU_RATE_HZ = 20.0
+
+
+def _load_decision(
+    events: list[Event], ap: int | None, segments: list[Any], vehicle: Any, load_sensor: bool
+) -> tuple[Any, dict[str, Any]]:
+    """Is a load attached (``offboard.logs.replay_load``: from the log's IMU and attitude, not from its name)? The
+    vehicle the estimator then runs with (without a cable-angle sensor and without a load: the vehicle file's load
+    removed, so the filter has no swing states to diverge; with a load: the identified mass and cable length in
+    place of the file's) and metrics.json's ``load`` block."""
+    from offboard.logs.replay_load import identify_from_log, load_block
+
+    ident = identify_from_log(events, ap, segments, vehicle)
+    block = load_block(ident, vehicle, load_sensor)
+    if ident is not None and not ident.attached and not load_sensor and vehicle.mass_load > 0.0:
+        block["estimator_vehicle"] = "the vehicle file's load removed: no swing states"
+        vehicle = vehicle.with_changes(mass_load=0.0)
+    elif ident is not None and ident.attached and ident.mass_kg is not None and ident.cable_m is not None:
+        # the filter's pendulum is the one the log shows, not the vehicle file's guess
+        block["estimator_vehicle"] = "the identified load"
+        vehicle = vehicle.with_changes(mass_load=ident.mass_kg, cable_length=ident.cable_m)
+    block["estimator_load"] = {"mass_kg": vehicle.mass_load, "cable_m": vehicle.cable_length}
+    return vehicle, block
+
+
 def replay(
     sc: Scan, inv: dict[str, Any], config: ReplayConfig, progress: Callable[[float], None] | None = None
 ) -> ReplayResult:
@@ -230,7 +289,15 @@ def _replay(
         from estimators.filters.factory import default_tuning
 
         segments, _ = flight_segments(sc)
+        segments, flips = _end_at_flip(events, ap, segments)
+        vehicle, load = _load_decision(events, ap, segments, vehicle, load_sensor)
+        config = dataclasses.replace(config, vehicle=vehicle)
         fitted = fit_sensor_noise(meas)
+        if vehicle.mass_load == 0.0 and (fitted["rates_hz"].get("imu") or 0.0) < MIN_IMU_RATE_HZ:
+            # an IMU logged this slowly aliases the vehicle's vibration into the band the filter tracks; with no
+            # swing to estimate from it, the filter runs on the attitude and the position alone
+            events = [e for e in events if not (e.kind == "m" and isinstance(e.payload, Imu))]
+            load["estimator_imu"] = f"not used: logged at {fitted['rates_hz']['imu']:.1f} Hz"
         tuning = tuning_for(fitted, default_tuning(config.estimator))
         fastest = max((r for k, r in fitted["rates_hz"].items() if k in ("imu", "attitude") and r), default=None)
         if fastest is not None and fastest < rate:  # ticking faster than the log's fastest sensor adds nothing
@@ -247,11 +314,22 @@ def _replay(
             "filter_sigma": {k: getattr(tuning, k) for k in ("sigma_acc", "sigma_rate", "sigma_tilt", "sigma_pos_xy")},
         }
         extra["segments"] = [sg.as_dict() for sg in segments]
+        extra["load"] = load
+        if flips:
+            extra["flips"] = flips
         data = as_table(rows, len(cols))
     if progress is not None:
         progress(1.0)
     metrics = replay_metrics(data, cols, inv, estimator, output, source, extra, config, rate, load_sensor, MASKS)
     metrics["timeline"] = timeline(events, extra.get("divergences", []))
+    for flip in extra.get("flips", []):
+        metrics["timeline"].append({"t_s": flip["t_s"], "kind": "flip", "text": flip["text"]})
+        metrics["estimation"].setdefault("flips", []).append(flip)
+    if "load" in extra:
+        metrics["load"] = extra["load"]
+        if extra["load"].get("attached") is False:  # no swing states: no swing figure either
+            for k in ("swing_max_rad", "swing_rms_rad"):
+                metrics["estimation"].pop(k, None)
     truth: np.ndarray | None = None
     if inv.get("payload_truth") is not None and len(data):
         metrics["estimation"]["swing_vs_truth"], truth = swing_vs_truth(events, data, cols, ap, inv.get("load_sysid"))

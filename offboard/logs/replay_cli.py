@@ -243,8 +243,9 @@ def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
     """Do the work of ``slung replay``; returns (exit code, metrics, report folder). Used by tests."""
     from offboard.logs import replay as rp
     from offboard.logs.log_formats import log_format_of, scan_dataflash, scan_ulog
+    from offboard.logs.replay_partial import PARTIAL_COLUMNS, partial_possible, replay_partial
     from offboard.logs.tlog import TlogReader
-    from offboard.outputs import prepare_output_dir, write_json_atomic
+    from offboard.outputs import prepare_output_dir, write_json_atomic, write_text_atomic
     from offboard.report.replay_report import format_summary, write_outputs
 
     path = Path(args.tlog)
@@ -283,6 +284,17 @@ def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
     inv = rp.inventory(sc)
     ok, reasons = rp.replayable(inv)
     print(f"log: {path} ({path.stat().st_size} bytes, {fmt})")
+    if not ok and partial_possible(inv, reasons):  # no horizontal position: replay what can be estimated
+        data, metrics = replay_partial(sc, inv, config.vehicle)
+        metrics["reader"] = rstats
+        metrics["speed"] = {"wall_s": time.perf_counter() - wall0}
+        write_json_atomic(out_dir / "metrics.json", metrics)
+        header = ",".join(PARTIAL_COLUMNS)
+        body = "\n".join(",".join(repr(float(v)) for v in row) for row in data)
+        write_text_atomic(out_dir / "timeseries.csv", header + "\n" + body + ("\n" if len(data) else ""))
+        print(format_summary(metrics, rstats))
+        print(f"report: {out_dir.resolve()}")
+        return 0, metrics, out_dir
     if not ok:
         metrics = {"log": inv, "reader": rstats, "replayed": False, "reasons": reasons}
         write_json_atomic(out_dir / "metrics.json", metrics)
@@ -310,14 +322,16 @@ def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
     span = result.metrics["estimation"].get("vehicle_time_span_s")
     log_s = (span[1] - span[0]) if span else 0.0
     result.metrics["speed"] = {"wall_s": wall, "log_s": log_s, "x_realtime": log_s / wall if wall > 0 else None}
-    write_outputs(
-        result, out_dir, figures=not args.no_figures, log_name=path.name, cable_length=config.vehicle.cable_length
-    )
+    # the cable the replay's filter used (the identified one, where the load identification found a load)
+    cable = ((result.metrics.get("load") or {}).get("estimator_load") or {}).get(
+        "cable_m"
+    ) or config.vehicle.cable_length
+    write_outputs(result, out_dir, figures=not args.no_figures, log_name=path.name, cable_length=cable)
     if not args.no_figures and len(result.data) > 1:
         from offboard.report.replay_report_html import write_replay_html
 
         title = f"slung replay: {path.name}, {config.vehicle.name} vehicle, kf estimator, {result.output} setpoints"
-        write_replay_html(result, out_dir, title, config.vehicle.cable_length)
+        write_replay_html(result, out_dir, title, cable)
     print(format_summary(result.metrics, rstats))
     print(f"replayed {log_s:.1f} s of flight in {wall:.2f} s ({log_s / max(wall, 1e-9):.0f}x real time)")
     print(f"report: {out_dir.resolve()}")

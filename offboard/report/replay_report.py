@@ -42,18 +42,31 @@ def write_outputs(
     return paths
 
 
-def draw_figures(result: ReplayResult, out_dir: Path) -> list[Path]:
-    """swing.png (estimated swing vs the cable-angle sensor and the payload's truth), flat_outputs.png (estimated
-    F_x, F_y, z, psi and their references), setpoints.png (logged vs recomputed setpoints and their difference,
-    when the log has them)."""
+def swing_shown(metrics: dict[str, Any]) -> bool:
+    """Whether the replay has a swing to show: not when the load identification found no load attached (the filter
+    then ran without swing states)."""
+    return (metrics.get("load") or {}).get("attached") is not False
+
+
+def load_line(load: dict[str, Any]) -> str:
+    """The summary's ``load`` line: the decision, the identified values with their 1-sigma uncertainty, why."""
+    if load.get("attached") is None:
+        return f"unknown ({load.get('reason')})"
+    if not load["attached"]:
+        return f"not attached ({load.get('reason')})"
+    unc = load.get("uncertainty") or {}
+    return (
+        f"attached: mass {_fmt(load['mass_kg'], ' kg')} +- {_fmt(unc.get('mass_kg'), ' kg')}, cable "
+        f"{_fmt(load['cable_m'], ' m')} +- {_fmt(unc.get('cable_m'), ' m')} (vehicle file: "
+        f"{load['prior']['mass_kg']:g} kg on {load['prior']['cable_m']:g} m)"
+    )
+
+
+def draw_swing(result: ReplayResult, save: Any) -> None:
+    """swing.png: the estimated swing, the cable-angle sensor and the payload's truth where the log has them."""
     plt = pyplot()
     col = result.column
     t = col("t")
-    paths: list[Path] = []
-
-    def save(fig: Any, name: str) -> None:
-        paths.append(save_png(fig, out_dir / name))
-
     fig, axes = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
     for i, (ax, name) in enumerate(zip(axes, ("alpha_x", "alpha_y"))):
         ax.plot(t, col(name), lw=1.0, label="estimate")
@@ -68,6 +81,22 @@ def draw_figures(result: ReplayResult, out_dir: Path) -> list[Path]:
     axes[-1].set_xlabel("vehicle time (s)")
     axes[0].set_title("swing estimate")
     save(fig, "swing.png")
+
+
+def draw_figures(result: ReplayResult, out_dir: Path) -> list[Path]:
+    """swing.png (estimated swing vs the cable-angle sensor and the payload's truth), flat_outputs.png (estimated
+    F_x, F_y, z, psi and their references), setpoints.png (logged vs recomputed setpoints and their difference,
+    when the log has them)."""
+    plt = pyplot()
+    col = result.column
+    t = col("t")
+    paths: list[Path] = []
+
+    def save(fig: Any, name: str) -> None:
+        paths.append(save_png(fig, out_dir / name))
+
+    if swing_shown(result.metrics):
+        draw_swing(result, save)
 
     fig, axes = plt.subplots(4, 1, figsize=(9, 8), sharex=True)
     for ax, (name, ref, unit) in zip(
@@ -177,8 +206,15 @@ def format_summary(metrics: dict[str, Any], reader: dict[str, Any] | None = None
                 + ("; ..." if len(segs) > 6 else ""),
             )
         )
+    load = metrics.get("load")
+    if load:
+        rows.append(("load", load_line(load)))
     est = metrics.get("estimation")
-    if est:
+    if est and est.get("partial"):
+        from offboard.logs.replay_partial import partial_summary
+
+        rows += partial_summary(metrics)
+    elif est:
         span = est.get("vehicle_time_span_s")
         rows.append(
             (
@@ -198,9 +234,13 @@ def format_summary(metrics: dict[str, Any], reader: dict[str, Any] | None = None
                     + (f"; first at t = {first['t_s']:.3f} s: {first['reason']}" if first else ""),
                 )
             )
-        rows.append(
-            ("swing", f"max {_fmt(est.get('swing_max_rad'), ' rad')}, rms {_fmt(est.get('swing_rms_rad'), ' rad')}")
-        )
+        if "swing_max_rad" in est:
+            rows.append(
+                (
+                    "swing",
+                    f"max {_fmt(est.get('swing_max_rad'), ' rad')}, rms {_fmt(est.get('swing_rms_rad'), ' rad')}",
+                )
+            )
         if "position_vs_autopilot_m" in est:
             rows.append(
                 (

@@ -17,6 +17,7 @@ from estimators.model.cable import cable_from_planar
 from offboard.logs.replay import ReplayResult
 from offboard.report.filter_readouts import estimate_trace, innovation_panels
 from offboard.report.html_report import Animation, Event, Panel, Trace, write_report_html
+from offboard.report.replay_report import swing_shown
 
 
 def _has(y: np.ndarray) -> bool:
@@ -34,7 +35,8 @@ def replay_panels(result: ReplayResult, cable_length: float | None = None) -> li
         return col("sd_" + name) if "sd_" + name in result.columns else None
 
     panels: list[Panel] = []
-    for i, name in enumerate(("alpha_x", "alpha_y")):
+    swing = ("alpha_x", "alpha_y") if swing_shown(result.metrics) else ()
+    for i, name in enumerate(swing):
         traces = [estimate_trace(name, col(name), sd(name))]
         if _has(col("meas_" + name)):
             traces.append(Trace(f"{name} cable-angle sensor", col("meas_" + name), dash=True))
