@@ -7,10 +7,8 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -18,12 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from dataflash_writer import sim_dataflash
-from real_components import require
+from real_components import require_ardupilot_sitl
 from test_replay_real_logs import shared_log
 
 from estimators.identification.load_id import coupled_mode_frequency
 from estimators.model.vehicle import Vehicle, load_vehicle, vehicle_to_toml
 from offboard.cli import main
+from sim_bridge.sitl.ardupilot_sitl import ArduPilotSitl
 
 
 def _replay(path: Path, out: Path, capsys: pytest.CaptureFixture[str], *extra: str) -> tuple[int, dict, str]:
@@ -157,45 +156,24 @@ z = 3.0
 """
 
 
-def _ardupilot_sitl() -> Path:
-    """``shared/ardupilot-sitl/run-copter`` (beside the repository or its worktrees; ``$SLUNG_ARDUPILOT_SITL``
-    overrides), or skip / fail saying why."""
-    env = os.environ.get("SLUNG_ARDUPILOT_SITL")
-    here = Path(__file__).resolve().parent.parent
-    dirs = [Path(env)] if env else [p / "shared" / "ardupilot-sitl" for p in (here.parent, *here.parents)]
-    for d in dirs:
-        if (d / "run-copter").is_file() and (d / "bin" / "arducopter").is_file():
-            return d / "run-copter"
-    require("ArduPilot SITL", f"no run-copter in {dirs[0]}")
-    raise AssertionError("unreachable")
-
-
 @pytest.mark.slow
 def test_an_ardupilot_sitl_payload_log_is_identified(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Real ArduPilot SITL carrying its simulated payload (1.2 kg on 1 m, ArduPilot's own SIM_SlungPayload) flown by
     ``slung fly`` through two 3 m moves; its DataFlash log replayed with a vehicle file that says 0.6 kg on 1.5 m:
     attached, mass within 20 %, cable within 10 % (issue 34), and the swing estimated with the identified load within
     0.015 rad RMS of ArduPilot's SLUP truth (0.005 measured; 0.03 with the file's load). Uses instance 0 (the
-    payload's fixed port): run it under ``flock /tmp/ardupilot-instance0.lock``. About 2 minutes."""
-    run_copter = _ardupilot_sitl()
+    payload's fixed port), in the suite's one SITL unit (tests/conftest.py). About 2 minutes."""
+    root = require_ardupilot_sitl()
     slung = shutil.which("slung") or str(Path(sys.executable).with_name("slung"))
     traj = tmp_path / "moves.toml"
     traj.write_text(TRAJECTORY)
     work = tmp_path / "sitl"
-    env = {**os.environ, "SLUNG_PAYLOAD_KG": "1.2", "SLUNG_LINE_M": "1.0"}
-    with open(tmp_path / "sitl.out", "wb") as out:
-        sitl = subprocess.Popen(
-            [str(run_copter), "0", str(work)], stdout=out, stderr=out, env=env, start_new_session=True
-        )
-    try:
+    with ArduPilotSitl(instance=0, workdir=work, root=root, payload_kg=1.2, line_m=1.0) as sitl:
         # --stale-limit 0.5: SITL at real time on a shared machine stalls past the default 0.1 s now and then
         fly_args = ["--vehicle", "ardupilot-sitl-quad", "--trajectory", str(traj), "--telemetry-timeout", "90"]
         fly_args += ["--start-timeout", "20", "--stale-limit", "0.5", "--no-figures", "--out", str(tmp_path / "fly")]
-        cmd = [slung, "fly", "--connect", "tcp:127.0.0.1:5760", *fly_args]
+        cmd = [slung, "fly", "--connect", sitl.connection_url, *fly_args]
         fly = subprocess.run(cmd, capture_output=True, text=True, timeout=400)
-    finally:
-        os.killpg(sitl.pid, signal.SIGTERM)
-        sitl.wait(timeout=30)
     assert fly.returncode == 0, fly.stderr[-2000:]
     logs = sorted((work / "logs").glob("*.BIN"))
     assert logs, "ArduPilot SITL wrote no DataFlash log"
