@@ -43,6 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from estimators.model.frames import model_to_ned_vector  # noqa: E402 - after the path set-up
+from offboard.logs.timeseries_file import read_table  # noqa: E402
 from sim_bridge.sitl.px4_sitl import Px4Sitl  # noqa: E402
 from sim_bridge.sitl.px4_ulog import NAV_STATE, flight_quality, read_px4_ulog  # noqa: E402
 
@@ -108,7 +109,7 @@ def slung_hover(url: str, height: float, duration: float, out: Path, vehicle: st
     cmd += ["--no-figures", "--out", str(out / "slung")]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
     m = json.loads((out / "slung" / "metrics.json").read_text())
-    d = np.genfromtxt(out / "slung" / "timeseries_live.csv", delimiter=",", names=True)
+    d = read_table(out / "slung" / "timeseries_live.slts")
     stats = m.get("estimation", {}).get("stats", {})
     acc, gated = stats.get("accepted", 0), stats.get("gated_outliers", 0)
     return {

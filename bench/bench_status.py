@@ -9,7 +9,7 @@ the pairs and the ratio with / without, with the load average.
 
 ``--same-run``: one flight instead, the display switched on and off in alternate ``--window`` seconds (1 s) of the
 same run, so that both halves see the same machine load; the ticks are split by the window they started in
-(``t_local`` of ``timeseries_live.csv``) and their compute time and latency compared (median, p99), beside the
+(``t_local`` of ``timeseries_live.slts``) and their compute time and latency compared (median, p99), beside the
 time each status line took to draw (the display holds the interpreter that long: the most it can delay a tick).
 
     python bench/bench_status.py --same-run [--duration 30] [--window 1] [--rate 250]
@@ -32,6 +32,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_loop import one
+
+from offboard.logs.timeseries_file import read_table
 
 KEYS = ("compute_us_p50", "compute_us_p99", "latency_us_p50", "latency_us_p99", "missed_fraction")
 
@@ -120,10 +122,8 @@ def same_run(rate: float, duration: float, window_s: float) -> int:
         finally:
             sys.stderr, sys.stdout = old, old_out
             undo()
-        path = Path(tmp) / f"loop-{rate:g}-p0-status" / "timeseries_live.csv"
-        with open(path, encoding="utf-8") as fh:
-            header = fh.readline().strip().split(",")
-        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+        table = read_table(Path(tmp) / f"loop-{rate:g}-p0-status" / "timeseries_live.slts")
+        header, data = list(table.columns), table.data
     col = {n: data[:, i] for i, n in enumerate(header)}
     on = (np.floor(col["t_local"] / window_s) % 2) == 0
     print(

@@ -11,7 +11,6 @@ The emulator runs in this process (real time) and its truth is sampled every 2 m
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import socket
 import subprocess
@@ -22,6 +21,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from offboard.logs.timeseries_file import read_table
 
 #: the move of tests/test_px4_sitl.py: rest 1 s, 2 m along x in 4 s with the velocity step, at 2 m
 MOVE_TOML = 'shape = "velocity"\n' + "".join(
@@ -71,9 +72,8 @@ def main() -> int:
     if p.returncode != 0:
         print(f"slung fly exited {p.returncode}: {p.stderr.strip().splitlines()[-1:]}", file=sys.stderr)
         return 1
-    with open(out / "fly" / "timeseries_live.csv", encoding="utf-8") as fh:
-        rows = list(csv.DictReader(fh))
-    t0, t1 = float(rows[0]["t_vehicle"]), float(rows[-1]["t_vehicle"])
+    t_vehicle = read_table(out / "fly" / "timeseries_live.slts")["t_vehicle"]
+    t0, t1 = float(t_vehicle[0]), float(t_vehicle[-1])
     s = np.array(samples)
     tilt = s[(s[:, 0] >= t0) & (s[:, 0] <= t1), 1]
     p95, peak = math.degrees(float(np.percentile(tilt, 95))), math.degrees(float(tilt.max()))

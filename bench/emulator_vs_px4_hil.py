@@ -27,6 +27,8 @@ from pathlib import Path
 import numpy as np
 from emulator_move_tilt import MOVE_TOML  # the 2 m move of the PX4 tests (bench/ is on the path of its scripts)
 
+from offboard.logs.timeseries_file import read_table
+
 VEHICLE = "px4-hil-load"
 DURATION_S = 14.0
 
@@ -42,7 +44,7 @@ def _fly(url: str, traj: Path, out: Path) -> None:
 def _figures(fly: Path, t: np.ndarray, load: np.ndarray, tilt: np.ndarray) -> dict[str, float]:
     """The figures over the time under control: ``t`` (s, the autopilot's clock), the load's position (n, 3, NWU),
     the vehicle's tilt (rad), judged against the reference in ``fly``'s live time series."""
-    live = np.genfromtxt(fly / "timeseries_live.csv", delimiter=",", names=True)
+    live = read_table(fly / "timeseries_live.slts")
     keep = (t >= live["t_vehicle"][0]) & (t <= live["t_vehicle"][-1])
     t, load, tilt = t[keep], load[keep], tilt[keep]
     rx = np.interp(t, live["t_vehicle"], live["ref_fx0"])

@@ -1,6 +1,6 @@
 """Why the 2 m move's true tilt exceeds its reference's on real PX4 (SIH): the figures behind docs/deploy.md §2a.
 
-For each folder a ``tests/test_px4_sitl.py`` move left (``<basetemp>/px4-flights0/move``: ``fly/timeseries_live.csv``
+For each folder a ``tests/test_px4_sitl.py`` move left (``<basetemp>/px4-flights0/move``: ``fly/timeseries_live.slts``
 and ``px4/log/*/*.ulg``), over the flight's window (the rows of the live time series, as ``flight_quality``):
 
 - ``truth``: tilt p95 / peak of the SIH ground truth (``vehicle_attitude_groundtruth``), issue 9's figure;
@@ -30,6 +30,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from estimators.model.frames import STANDARD_GRAVITY
+from offboard.logs.timeseries_file import read_table
 
 
 def _ulog_topics(path: str) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, float]]:
@@ -64,7 +65,7 @@ def _fit_lag(t: np.ndarray, sp: np.ndarray, y: np.ndarray) -> tuple[float, float
 
 
 def analyse(base: str) -> str:
-    d = np.genfromtxt(base + "/fly/timeseries_live.csv", delimiter=",", names=True)
+    d = read_table(base + "/fly/timeseries_live.slts")
     topics, params = _ulog_topics(glob.glob(base + "/px4/log/*/*.ulg")[0])
     t = d["t_vehicle"]
     t0, t1 = float(t[0]), float(t[-1])

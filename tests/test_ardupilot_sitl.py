@@ -38,6 +38,7 @@ import numpy as np
 import pytest
 from real_components import require_ardupilot_sitl
 
+from offboard.logs.timeseries_file import Table, read_table
 from sim_bridge.sitl.ardupilot_dataflash import (
     MODES,
     ArduPilotFlightLog,
@@ -78,8 +79,9 @@ class Flight:
     def metrics(self) -> dict[str, Any]:
         return json.loads((self.out / "fly" / "metrics.json").read_text())
 
-    def ticks(self) -> np.ndarray:
-        return np.genfromtxt(self.out / "fly" / "timeseries_live.csv", delimiter=",", names=True)
+    def ticks(self) -> Table:
+        """The flight's tick log (``timeseries_live.slts``), columns by name."""
+        return read_table(self.out / "fly" / "timeseries_live.slts")
 
     def announced_tilt_limit(self) -> float:
         """The tilt limit ``slung fly`` announced for its setpoints (rad), from its output."""

@@ -18,11 +18,12 @@ import pytest
 from emulator_helpers import emulator_process, stop_emulator_process
 
 from offboard.harness.demo_cli import free_udp_port
+from offboard.logs.timeseries_file import read_table
 
 ROOT = Path(__file__).resolve().parents[1]
 #: bytes any one file of the flight process may reach: metrics.json (8 kB) and events.json (3 kB) fit, the tlog
-#: (300 kB by the start of control) and the time series (timeseries_live.csv 220 kB, timeseries.csv 110 kB for
-#: this flight, 7 Dec 2026) do not
+#: (300 kB by the start of control) and the streamed tick log (timeseries_live.slts, about 400 kB for this flight,
+#: 7 Dec 2026) do not
 FILE_LIMIT = 100_000
 
 
@@ -55,9 +56,12 @@ def test_a_full_disk_leaves_the_flight_s_exit_code_warnings_metrics_and_one_summ
     assert "output stopped: tlog" in stopped[0] and "File too large" in stopped[0], err[-3000:]
     # it stopped during the flight (before the control phase began), and the flight went on
     assert lines.index(stopped[0]) < next(i for i, line in enumerate(lines) if line.startswith("[control]"))
-    assert any("output stopped: timeseries_live.csv" in line for line in stopped), err[-3000:]
+    assert any("output stopped: timeseries_live.slts" in line for line in stopped), err[-3000:]
     failed = m["outputs"]["failed"]
-    assert failed[0].startswith("tlog") and any(f.startswith("timeseries_live.csv") for f in failed), failed
-    assert not (out / "timeseries_live.csv").exists()  # atomic: no half-written file either
+    assert failed[0].startswith("tlog") and any(f.startswith("timeseries_live.slts") for f in failed), failed
+    # the tick log streamed during the flight keeps every block written before the limit: readable, marked
+    # incomplete, never past the limit (its rewrite at the end is atomic: no half-written copy replaces it)
+    live = read_table(out / "timeseries_live.slts")
+    assert not live.complete and len(live) > 100 and (out / "timeseries_live.slts").stat().st_size <= FILE_LIMIT
     summary = lines[-1]
     assert summary.startswith("slung fly: completed (exit 0)") and "outputs incomplete: tlog" in summary, summary

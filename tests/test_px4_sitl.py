@@ -46,7 +46,7 @@ import pytest
 from real_components import require_px4_sitl
 
 from estimators.model.frames import model_to_ned_vector
-from offboard.logs.timeseries_file import read_table
+from offboard.logs.timeseries_file import Table, read_table
 from sim_bridge.sitl.px4_sitl import Px4Sitl
 from sim_bridge.sitl.px4_ulog import NAV_STATE, Px4FlightLog, flight_quality, read_px4_ulog
 
@@ -101,7 +101,7 @@ class Flight:
     def events(self) -> dict[str, Any]:
         return json.loads((self.out / "fly" / "events.json").read_text())
 
-    def ticks(self) -> np.ndarray:
+    def ticks(self) -> Table:
         return read_table(self.out / "fly" / "timeseries_live.slts")
 
 

@@ -52,7 +52,7 @@ def test_a_terminal_gets_the_bar_redrawn_in_place() -> None:
 
 
 def _sweep(tmp_path: Path, stderr: int) -> subprocess.Popen:
-    f = short_file(tmp_path, engine="batched")
+    f = short_file(tmp_path, engine="scalar")
     cmd = [sys.executable, "-m", "offboard.cli", "sweep", "--runs", "4", "--controllers", "smc"]
     cmd += ["--file", str(f), "--workers", "0", "--no-figures", "--out", str(tmp_path / "s")]
     return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=stderr)

@@ -300,8 +300,7 @@ def write_flight_outputs(
         "latency": result.latency,
         "exit_code": exit_code(result.ended_by),
     }
-    tlog_failure = link.get("tlog_failure")
-    m["outputs"] = {"failed": [tlog_failure] if tlog_failure else []}
+    m["outputs"] = {"failed": [f for f in (link.get("tlog_failure"), link.get("live_log_failure")) if f]}
     outputs.attempt("metrics.json", lambda: write_json_atomic(out_dir / "metrics.json", m))
     if len(rows) >= 2:  # then timeseries.csv and the figures (the report writes metrics.json again, the same)
         outputs.attempt(

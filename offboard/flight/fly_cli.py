@@ -320,6 +320,7 @@ def fly(
             "clock_source": conn.clock.source,
             "tlog_records": conn.tlog.records if conn.tlog is not None else 0,
             "tlog_failure": conn.tlog.failure if conn.tlog is not None else None,
+            "live_log_failure": live_stream.failure,
             "foreign_command_acks": conn.stats.foreign_acks,
             "foreign_datagrams": conn.stats.foreign_datagrams,
             "deferred_polls": conn.stats.deferred_polls,

@@ -1,4 +1,4 @@
-"""The estimate columns of the live tick log (``est_<name>`` in ``timeseries_live.csv``): one list for the loop
+"""The estimate columns of the live tick log (``est_<name>`` in ``timeseries_live.slts``): one list for the loop
 that writes them and the replay that reads them back. Model frame, SI / rad: flat outputs F_x, F_y and their
 derivatives of orders 0..5 (m ... m/s^5), height and its rate, Euler angles and their rates, swing angles and rates.
 

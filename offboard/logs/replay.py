@@ -20,7 +20,7 @@ Two passes over memory, one over the file:
 
 Everything is in the model frame (world NWU z up, body FLU), SI units and radians; time ``t`` is the vehicle's
 time since boot (s). Output: :class:`ReplayResult` (a table with one row per tick, ``metrics``), written by
-:func:`write_outputs` as ``timeseries.csv``, ``metrics.json`` and figures.
+:func:`write_outputs` as ``timeseries.slts``, ``metrics.json`` and figures.
 
 This module is the driver and the API; the parts: ``replay_records`` (configuration, result, the live loop's log
 read back), ``replay_plan`` (which ticks), ``replay_ticks`` (the offboard ticks), ``replay_grid`` (estimation

@@ -1,5 +1,5 @@
 """Which ticks a replay runs (``offboard.logs.replay``): one per logged setpoint, from the live loop's own log
-(``timeseries_live.csv``: tick time, reference time, the measurements pushed before the tick) or, without it,
+(``timeseries_live.slts``: tick time, reference time, the measurements pushed before the tick) or, without it,
 from the setpoints and events of the tlog. Times are the vehicle's (s since boot).
 """
 
@@ -108,7 +108,7 @@ def plan_from_setpoints(
       the newest sample time before it.
 
     Exact for lockstep runs of the loop; approximate otherwise (the loop's real-time tick times are not on the
-    wire: use its tick log, ``timeseries_live.csv``, for an exact replay)."""
+    wire: use its tick log, ``timeseries_live.slts``, for an exact replay)."""
     on_idx = next((i for i, e in enumerate(events) if e.kind == "mode" and e.payload), None)
     cand = [(i, e) for i, e in sp_events if on_idx is None or i > on_idx]
     k0 = next((k for k, (_, e) in enumerate(cand) if not is_hover(e.payload[0])), None)

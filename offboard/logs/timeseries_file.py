@@ -24,6 +24,7 @@ rounded: ``slung replay`` compares its estimates and setpoints with the live run
 from __future__ import annotations
 
 import json
+import logging
 import struct
 import threading
 import zlib
@@ -36,6 +37,8 @@ import numpy as np
 
 from estimators.errors import UserError
 from offboard.outputs import user_file_mode, write_atomic
+
+log = logging.getLogger(__name__)
 
 #: file suffix of the format; the CSV it replaces keeps reading (:func:`read_table`)
 SUFFIX = ".slts"
@@ -145,6 +148,7 @@ class TableStreamer:
             self._fh.flush()
         except OSError as exc:
             self.failure = f"{self.path.name}: stopped writing ({exc.strerror or exc})"
+            log.warning("output stopped: %s (the flight goes on)", self.failure)  # once: the stream stops here
             return
         self.written = n
 

@@ -2,7 +2,7 @@
 true error stayed inside it, and the innovations panel (normalized innovation per update stream, refused updates).
 
 Reads the columns ``offboard.logs.estimate_columns`` names (``sd_*``, ``nu_*``, ``gated_*``) from any table, given as
-``column(name) -> array or None``: the live loop's ``timeseries_live.csv`` rows and the replay's table both have
+``column(name) -> array or None``: the live loop's ``timeseries_live.slts`` rows and the replay's table both have
 them. Units: those of the quantity (m, rad); innovations are dimensionless.
 """
 

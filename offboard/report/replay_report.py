@@ -27,7 +27,7 @@ def write_timeseries(result: ReplayResult, path: Path) -> Path:
 def write_outputs(
     result: ReplayResult, out_dir: Path, figures: bool = True, log_name: str = "log", cable_length: float = 1.0
 ) -> list[Path]:
-    """metrics.json, timeseries.csv and (optionally) the PNG figures in ``out_dir``; returns the paths written
+    """metrics.json, timeseries.slts and (optionally) the PNG figures in ``out_dir``; returns the paths written
     (``report.html``: ``offboard.report.replay_report_html``). ``log_name`` titles the figures; ``cable_length`` (m, the
     controller's vehicle) places the vehicle behind the estimated flat output."""
     paths = [

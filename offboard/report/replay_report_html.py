@@ -3,7 +3,7 @@ cable-angle sensor, the autopilot's attitude), the references, the setpoints log
 replay's health flags, and a 3D view of the vehicle (the autopilot's position) with the load where the estimated
 swing puts it. Drawn by ``offboard.report.html_report``.
 
-Time axis: the vehicle's time since boot (s), as in the replay's ``timeseries.csv``; positions: model frame
+Time axis: the vehicle's time since boot (s), as in the replay's ``timeseries.slts``; positions: model frame
 (world, z up), m.
 """
 

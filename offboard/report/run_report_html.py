@@ -1,6 +1,6 @@
 """``report.html`` of a ``slung sim``, ``fly`` or ``demo`` run: the panels, events and 3D animation that
 ``offboard.report.html_report`` draws, built from the run's :class:`~offboard.logs.runlog.SimLog` (and, for a flight,
-the live rows of ``timeseries_live.csv`` and ``events.json``).
+the live rows of ``timeseries_live.slts`` and ``events.json``).
 
 Time axis: the reference time (s; 0 where the reference starts). Positions: model frame (world, z up), m.
 """

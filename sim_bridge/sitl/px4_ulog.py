@@ -11,7 +11,7 @@ PX4 SITL with SIH logs the simulated vehicle's true state beside what its own es
 - ``vehicle_status``: navigation state and arming state (the failsafe hand-over).
 
 Times are seconds since PX4 booted: the clock of MAVLink's ``time_boot_ms``, so a flight log's ``t_vehicle``
-(``slung fly``'s ``timeseries_live.csv``) indexes these series directly. Frames are PX4's (NED / FRD): this is a
+(``slung fly``'s ``timeseries_live.slts``) indexes these series directly. Frames are PX4's (NED / FRD): this is a
 test and benchmark reader beside the flight path, and the comparisons it serves are made in NED.
 
 Both local frames share EKF2's reference point, but SIH's ground truth z is measured from its own origin while
