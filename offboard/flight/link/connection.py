@@ -442,7 +442,9 @@ class MavConnection:
     def _bookkeep(self, msg: Any, kind: str, now: float) -> None:
         v = self.vehicle
         src = msg.get_srcSystem()
-        if v is not None and src != v.system:
+        # (system 0 is no sender: pymavlink's UNKNOWN_<id> for messages outside its dialect carry it; PX4 sends
+        # several such)
+        if v is not None and src not in (v.system, 0):
             self.stats.foreign_systems[src] = self.stats.foreign_systems.get(src, 0) + 1
         if kind == "HEARTBEAT":
             comp = msg.get_srcComponent()
