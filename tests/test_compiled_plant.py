@@ -207,3 +207,32 @@ def test_the_kernels_wrap_angle_equals_the_scalar_paths_bit_for_bit() -> None:
         got, want = wrap_angle(x), scalar(x)
         assert got == want and math.copysign(1.0, got) == math.copysign(1.0, want), x
     assert all(math.isnan(wrap_angle(x)) and math.isnan(scalar(x)) for x in (math.inf, -math.inf, math.nan))
+
+
+def test_the_kernels_compile_the_scalar_paths_own_functions_and_their_cache_follows_them() -> None:
+    """The cable's projection and PX4's quaternion helpers are one source: the kernels are the scalar functions
+    themselves, compiled (``.py_func``); and the file of each is among ``layout.SHARED_SOURCES``, whose change drops
+    the compiled cache (numba keys an inlined function's code by its caller's file only)."""
+    import inspect
+    from pathlib import Path
+
+    from estimators.model import cable, frames, rotations
+    from offboard.harness.compiled import px4_loops
+    from sim_bridge.inner import px4_inner
+
+    pairs = [
+        (cp._project_cable, dynamics.project_cable),
+        (cp._thrust_direction, rotations.thrust_direction_trig),
+        (cp._planar_swing, cable.planar_swing),
+        (cp.body_rates, rotations.body_rates),
+        (px4_loops.euler_to_quaternion, frames.euler_to_quaternion),
+        (px4_loops._mul, rotations.quat_mul),
+        (px4_loops._conj, rotations.quat_conj),
+        (px4_loops._canonical, px4_inner.canonical),
+        (px4_loops._body_z, px4_inner.body_z),
+        (px4_loops._shortest_rotation, px4_inner.shortest_rotation),
+    ]
+    root = Path(lay.__file__).resolve().parents[3]
+    for kernel, scalar in pairs:
+        assert kernel.py_func is scalar
+        assert Path(inspect.getsourcefile(scalar)).resolve().relative_to(root).as_posix() in lay.SHARED_SOURCES

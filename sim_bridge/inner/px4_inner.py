@@ -41,18 +41,18 @@ from estimators.model.vehicle import Vehicle
 
 
 # ------------------------------------------------------------------------------------------------ quaternions
-def _canonical(q: Quat) -> Quat:
+def canonical(q: Quat) -> Quat:
     """The one of q, -q with a non-negative scalar part (the shorter rotation)."""
     return q if q[0] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
 
 
-def _body_z(q: Quat) -> tuple[float, float, float]:
+def body_z(q: Quat) -> tuple[float, float, float]:
     """Third column of the rotation matrix of q (the body z axis in the world frame)."""
     w, x, y, z = q
     return (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y))
 
 
-def _shortest_rotation(a: tuple[float, float, float], b: tuple[float, float, float]) -> Quat:
+def shortest_rotation(a: tuple[float, float, float], b: tuple[float, float, float]) -> Quat:
     """Unit quaternion of the smallest rotation taking unit vector a onto unit vector b (half-way construction)."""
     cx = a[1] * b[2] - a[2] * b[1]
     cy = a[2] * b[0] - a[0] * b[2]
@@ -86,22 +86,22 @@ class Px4AttitudeControl:
 
     def update(self, q: Quat, qd: Quat, yaw_rate_ff: float = 0.0) -> tuple[float, float, float]:
         """Rate setpoint for attitude ``q`` and setpoint ``qd``; ``yaw_rate_ff`` about the world vertical."""
-        ez, ezd = _body_z(q), _body_z(qd)
-        qd_red = _shortest_rotation(ez, ezd)
+        ez, ezd = body_z(q), body_z(qd)
+        qd_red = shortest_rotation(ez, ezd)
         # the attitude that only tilts the thrust axis onto the setpoint's (with the thrust axis reversed, full
         # attitude control gives the right answer directly)
         reversed_axis = abs(qd_red[1]) > 1.0 - 1e-5 or abs(qd_red[2]) > 1.0 - 1e-5
         qd_red = qd if reversed_axis else quat_mul(qd_red, q)
-        q_mix = _canonical(quat_mul(quat_conj(qd_red), qd))  # the remaining rotation: about the body z axis
+        q_mix = canonical(quat_mul(quat_conj(qd_red), qd))  # the remaining rotation: about the body z axis
         w = min(max(q_mix[0], -1.0), 1.0)
         zc = min(max(q_mix[3], -1.0), 1.0)
         yw = self.yaw_weight
         qd_w = quat_mul(qd_red, (math.cos(yw * math.acos(w)), 0.0, 0.0, math.sin(yw * math.asin(zc))))
-        qe = _canonical(quat_mul(quat_conj(q), qd_w))
+        qe = canonical(quat_mul(quat_conj(q), qd_w))
         g = self.gain
         r = [2.0 * qe[1] * g[0], 2.0 * qe[2] * g[1], 2.0 * qe[3] * g[2]]
         if yaw_rate_ff != 0.0:
-            wz = _body_z(quat_conj(q))  # the world z axis seen from the body
+            wz = body_z(quat_conj(q))  # the world z axis seen from the body
             r[0] += wz[0] * yaw_rate_ff
             r[1] += wz[1] * yaw_rate_ff
             r[2] += wz[2] * yaw_rate_ff

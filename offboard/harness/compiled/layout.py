@@ -27,15 +27,27 @@ import numba
 import numpy as np
 
 _PACKAGE = Path(__file__).resolve().parent
+#: the scalar path's modules whose functions kernels compile as they are (one source for both paths: the quaternion
+#: helpers, the cable's projection); numba caches an inlined function inside its caller's file, so a change to one
+#: of these must drop the package's cache as a change to the package does
+SHARED_SOURCES = (
+    "estimators/model/cable.py",
+    "estimators/model/frames.py",
+    "estimators/model/rotations.py",
+    "sim_bridge/inner/px4_inner.py",
+    "sim_bridge/plant/dynamics.py",
+)
 
 
 def _drop_stale_cache() -> None:
     """Numba's cache (``__pycache__/*.nbi``, ``*.nbc``) is keyed by the file that defines a kernel only: a kernel
     compiled with another module's kernels inside it would be loaded unchanged after that other module changed
     (a ``git checkout``, an edit). So the package's compiled cache is thrown away whenever any of its sources
-    changed since it was written, judged by a digest of them all kept beside the cache."""
+    changed since it was written (or any of :data:`SHARED_SOURCES`), judged by a digest of them all kept beside the
+    cache."""
     digest = hashlib.sha256()
-    for src in sorted(_PACKAGE.glob("*.py")):
+    root = _PACKAGE.parents[2]
+    for src in [*sorted(_PACKAGE.glob("*.py")), *(root / s for s in SHARED_SOURCES)]:
         digest.update(src.name.encode() + b"\0" + src.read_bytes())
     cache = _PACKAGE / "__pycache__"
     stamp = cache / "slung-compiled.sha256"

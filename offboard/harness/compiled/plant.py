@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from estimators.model import cable, rotations
 from offboard.harness.compiled.layout import (
     ATT,
     EST_ALPHA_X,
@@ -43,6 +44,7 @@ from offboard.harness.compiled.layout import (
     pure_kernel,
     wrap_angle,
 )
+from sim_bridge.plant import dynamics
 
 # ---- the true vehicle ---------------------------------------------------------------------------------------------
 P_M, P_m, P_L, P_G, P_IP, P_IT, P_IS, P_KDV, P_KDW = range(9)
@@ -77,6 +79,14 @@ def plant_constants(vehicle: Any) -> np.ndarray:
             1.0 / i_s,
         ]
     )
+
+
+# ---- the scalar path's own functions, compiled as they are ----------------------------------------------------------
+#: the cable's projection onto ``|r| = 1``, ``r . r' = 0`` after a step, the thrust's direction in the world frame,
+#: the two planar swing angles and their rates
+_project_cable = inline_kernel(dynamics.project_cable)
+_thrust_direction = inline_kernel(rotations.thrust_direction_trig)
+_planar_swing = inline_kernel(cable.planar_swing)
 
 
 # ---- the attitude's sines and cosines, shared by the kernels that read one state ------------------------------------
@@ -142,7 +152,7 @@ def derivative_at(x: np.ndarray, u: np.ndarray, p: np.ndarray, sc: tuple, out: n
     M, m, l = p[P_M], p[P_m], p[P_L]
     inv_M, inv_m = p[P_INV_M], p[P_INV_m]
     thrust = u[0]
-    n1, n2, n3 = sf * sp + cf * cp * st, cf * sp * st - cp * sf, cf * ct
+    n1, n2, n3 = _thrust_direction(sf, cf, st, ct, sp, cp)
     q1 = thrust * n1 + u[4]
     q2 = thrust * n2 + u[5]
     q3 = thrust * n3 + u[6]
@@ -205,14 +215,7 @@ def rk4_step_trig(x: np.ndarray, u: np.ndarray, p: np.ndarray, h: float, work: n
     h6 = h / 6.0
     for i in range(18):
         x[i] = x[i] + h6 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-    r1, r2, r3 = x[12], x[13], x[14]
-    inv = 1.0 / math.sqrt(r1 * r1 + r2 * r2 + r3 * r3)
-    r1, r2, r3 = r1 * inv, r2 * inv, r3 * inv
-    x[12], x[13], x[14] = r1, r2, r3
-    dot = r1 * x[15] + r2 * x[16] + r3 * x[17]
-    x[15] -= dot * r1
-    x[16] -= dot * r2
-    x[17] -= dot * r3
+    _project_cable(x)
     angle_trig(x, trig)
 
 
@@ -236,12 +239,8 @@ def tension_at(x: np.ndarray, u: np.ndarray, p: np.ndarray, sc: tuple) -> float:
     return (m * M * l * (d1 * d1 + d2 * d2 + d3 * d3) + M * rl - m * rq) / (M + m)
 
 
-@inline_kernel
-def body_rates(phi: float, theta: float, phi_rate: float, theta_rate: float, psi_rate: float) -> tuple:
-    """``estimators.model.rotations.body_rates``: (p, q, r) rad/s body FLU from the Euler angles and rates."""
-    sf, cf = math.sin(phi), math.cos(phi)
-    st, ct = math.sin(theta), math.cos(theta)
-    return phi_rate - st * psi_rate, cf * theta_rate + sf * ct * psi_rate, -sf * theta_rate + cf * ct * psi_rate
+#: (p, q, r) rad/s body FLU from the Euler angles and rates: the scalar path's own, compiled as it is
+body_rates = inline_kernel(rotations.body_rates)
 
 
 @pure_kernel
@@ -416,12 +415,7 @@ def truth_state(x: np.ndarray, l: float, g: float, c: float, out: np.ndarray) ->
 @inline_kernel
 def truth_state_at(x: np.ndarray, sp: float, cp: float, l: float, g: float, c: float, out: np.ndarray) -> None:
     """:func:`truth_state` with the sine and cosine of ``x``'s yaw given."""
-    r1, r2, r3, d1, d2, d3 = x[12], x[13], x[14], x[15], x[16], x[17]
-    qy = r1 * r1 + r3 * r3
-    qx = r2 * r2 + r3 * r3
-    ay, ax = math.atan2(r1, -r3), math.atan2(r2, -r3)
-    ayd = (r1 * d3 - r3 * d1) / qy if qy > 0.0 else 0.0
-    axd = (r2 * d3 - r3 * d2) / qx if qx > 0.0 else 0.0
+    ay, ax, ayd, axd = _planar_swing(x[12], x[13], x[14], x[15], x[16], x[17])
     phi, theta, psi, dphi, dtheta, dpsi = x[6], x[7], x[8], x[9], x[10], x[11]
     nx = theta * cp + phi * sp
     ny = theta * sp - phi * cp

@@ -19,8 +19,10 @@ from typing import Any
 
 import numpy as np
 
+from estimators.model import frames, rotations
 from offboard.harness.compiled.layout import inline_kernel, pack_constants, pure_kernel, py_max, py_min
 from offboard.harness.compiled.plant import body_rates
+from sim_bridge.inner import px4_inner
 
 # ---- constants ------------------------------------------------------------------------------------------------------
 # attitude P: gains roll, pitch, yaw (1/s; the yaw's divided by the weight), MC_YAW_WEIGHT, rate limits (rad/s)
@@ -109,65 +111,13 @@ def px4_state(thrust_each: float) -> np.ndarray:
     return s
 
 
-# ---- quaternions (model frame, w x y z) ------------------------------------------------------------------------------
-@inline_kernel
-def euler_to_quaternion(phi: float, theta: float, psi: float) -> tuple:
-    """``estimators.model.frames.euler_to_quaternion``: ZYX Euler angles (rad) -> unit quaternion."""
-    cr, sr = math.cos(0.5 * phi), math.sin(0.5 * phi)
-    cp, sp = math.cos(0.5 * theta), math.sin(0.5 * theta)
-    cy, sy = math.cos(0.5 * psi), math.sin(0.5 * psi)
-    return (
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    )
-
-
-@inline_kernel
-def _mul(a: tuple, b: tuple) -> tuple:
-    """``rotations.quat_mul``: the Hamilton product ``a * b``."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
-
-
-@inline_kernel
-def _conj(q: tuple) -> tuple:
-    """The conjugate (the inverse rotation)."""
-    return (q[0], -q[1], -q[2], -q[3])
-
-
-@inline_kernel
-def _canonical(q: tuple) -> tuple:
-    """The one of q, -q with a non-negative scalar part."""
-    return q if q[0] >= 0.0 else (-q[0], -q[1], -q[2], -q[3])
-
-
-@inline_kernel
-def _body_z(q: tuple) -> tuple:
-    """The body z axis in the world frame (the rotation matrix's third column)."""
-    w, x, y, z = q
-    return (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y))
-
-
-@inline_kernel
-def _shortest_rotation(a: tuple, b: tuple) -> tuple:
-    """The smallest rotation taking unit vector ``a`` onto ``b`` (``px4_inner._shortest_rotation``)."""
-    cx = a[1] * b[2] - a[2] * b[1]
-    cy = a[2] * b[0] - a[0] * b[2]
-    cz = a[0] * b[1] - a[1] * b[0]
-    d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-    w = d + 1.0
-    n = math.sqrt(w * w + cx * cx + cy * cy + cz * cz)
-    if n < 1e-9:  # opposite vectors: a half turn about an axis perpendicular to a
-        return (0.0, 1.0, 0.0, 0.0) if abs(a[0]) < 0.9 else (0.0, 0.0, 1.0, 0.0)
-    return (w / n, cx / n, cy / n, cz / n)
+# ---- quaternions (model frame, w x y z): the scalar path's own functions, compiled as they are ----------------------
+euler_to_quaternion = inline_kernel(frames.euler_to_quaternion)
+_mul = inline_kernel(rotations.quat_mul)
+_conj = inline_kernel(rotations.quat_conj)
+_canonical = inline_kernel(px4_inner.canonical)
+_body_z = inline_kernel(px4_inner.body_z)
+_shortest_rotation = inline_kernel(px4_inner.shortest_rotation)
 
 
 # ---- attitude P (Px4AttitudeControl.update) -----------------------------------------------------------------------
