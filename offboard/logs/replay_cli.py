@@ -21,7 +21,7 @@ from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle, VehicleFileError, load_vehicle, vehicle_from_toml
 from offboard.cli_args import add_no_figures_argument, finite_float
 from offboard.control.options import Switching, values
-from offboard.logs.timeseries_file import LIVE_LOG_NAME, table_path
+from offboard.logs.timeseries_file import LIVE_LOG_NAME, table_path, write_table
 
 EXIT_NOT_REPLAYABLE = 3
 
@@ -245,7 +245,7 @@ def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
     from offboard.logs.log_formats import log_format_of, scan_dataflash, scan_ulog
     from offboard.logs.replay_partial import PARTIAL_COLUMNS, partial_possible, replay_partial
     from offboard.logs.tlog import TlogReader
-    from offboard.outputs import prepare_output_dir, write_json_atomic, write_text_atomic
+    from offboard.outputs import prepare_output_dir, write_json_atomic
     from offboard.report.replay_report import format_summary, write_outputs
 
     path = Path(args.tlog)
@@ -289,9 +289,7 @@ def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
         metrics["reader"] = rstats
         metrics["speed"] = {"wall_s": time.perf_counter() - wall0}
         write_json_atomic(out_dir / "metrics.json", metrics)
-        header = ",".join(PARTIAL_COLUMNS)
-        body = "\n".join(",".join(repr(float(v)) for v in row) for row in data)
-        write_text_atomic(out_dir / "timeseries.csv", header + "\n" + body + ("\n" if len(data) else ""))
+        write_table(out_dir / "timeseries.slts", PARTIAL_COLUMNS, data)
         print(format_summary(metrics, rstats))
         print(f"report: {out_dir.resolve()}")
         return 0, metrics, out_dir

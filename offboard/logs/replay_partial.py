@@ -18,7 +18,7 @@ from estimators.model.vehicle import Vehicle
 from offboard.logs.log_inventory import Scan, clock_jump, flight_segments
 from offboard.logs.replay_load import identify_from_log, load_block
 
-#: the columns of a partial replay's timeseries.csv
+#: the columns of a partial replay's timeseries.slts
 PARTIAL_COLUMNS = ("t", "segment", "phi", "theta", "psi", "tilt", "p", "q", "r", "height", "height_rate")
 
 #: what a partial replay cannot give, in words
