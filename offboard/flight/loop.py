@@ -320,6 +320,7 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
             self.event("internal_error", reason)
             end_state = self._finish_guarded("hold", reason)
         finally:
+            self._enable_gc()  # whatever ended the flight, the collector is on again when run() returns
             self._restore_signals(old)
         return FlightResult(
             self.rows,
@@ -349,6 +350,8 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
     _aged_sample_t = -math.inf
     _ending_normally = False
     _finishing = False
+    #: the control phase turned the garbage collector off and it is to be turned on again (``_enable_gc``)
+    _gc_to_enable = False
     _settling = False
 
 

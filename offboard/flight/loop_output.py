@@ -6,6 +6,7 @@ until the autopilot confirms; a disarm on the ground after a refused take-off.
 
 from __future__ import annotations
 
+import gc
 import logging
 import select
 import time
@@ -82,26 +83,39 @@ class LoopOutputs:
             self.event("exit_failed", f"{type(exc).__name__}: {exc}")
             return f"{action} requested, hand-over failed ({type(exc).__name__}: {exc})"
 
+    def _control_ended(self) -> None:
+        """After the exit is recorded (and the hold / land requested): gaps and the autopilot's target are no longer
+        judged, and the refusals the rate limit held back are told."""
+        self.staleness.stop()
+        self._echo_on = False
+        self._enable_gc()
+        self._report_dropped(final=True)
+
+    def _enable_gc(self) -> None:
+        """Turn the garbage collector back on if the control phase turned it off (once)."""
+        if self._gc_to_enable:
+            self._gc_to_enable = False
+            gc.enable()
+
     def _finish(self, action: str, reason: str) -> str:
         """Leave offboard control: request hold / land while streaming hover setpoints, paced at the loop rate,
         until the heartbeat shows it (bounded by ``exit_timeout_s``, vehicle time in lockstep), then, for land,
         wait for the disarm. ``action`` ``none``: the vehicle has left the loop's control already (a pilot or a
         failsafe took over, or it disarmed): nothing is requested and nothing streamed."""
         self.supervisor.release()
-        self.staleness.stop()
-        self._echo_on = False
-        self._report_dropped(final=True)
         self._finishing = True
         v = self.conn.vehicle
         if action == "none":
             mode = mode_name(self.mgr.flavour, v.custom_mode) if v is not None else "unknown"
             self.event("exit", f"left to the vehicle: {reason}")
+            self._control_ended()  # what the rate limit held back (after the exit: it is not urgent)
             state = f"in {mode}, {'armed' if v is not None and v.armed else 'disarmed'} (not commanded by slung)"
             self.event("exit_done", state)
             return state
         role = "hold" if action == "hold" else "land"
         self.event("exit", f"{role}: {reason}")
         self.mgr.send_mode_no_wait(role)
+        self._control_ended()
         lockstep = self.cfg.lockstep
         clock = self._now_vehicle if lockstep else time.monotonic
         t_end = clock() + self.cfg.exit_timeout_s

@@ -65,9 +65,10 @@ class TickLoop:
             self._fly_ticks(t0, t_v, last_marker, origin, wall0)
         finally:
             stats.elapsed_s = time.monotonic() - wall0
-            if gc_was_enabled:
-                gc.enable()
             gc.unfreeze()
+            # the collector comes back once the hand-over is asked for (``_control_ended``), not before: its first
+            # collection sweeps everything the flight allocated (5 ms here) and must not delay the hold request
+            self._gc_to_enable = gc_was_enabled
 
     def _fly_ticks(
         self,
