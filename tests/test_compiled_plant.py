@@ -217,7 +217,8 @@ def test_the_kernels_compile_the_scalar_paths_own_functions_and_their_cache_foll
     from pathlib import Path
 
     from estimators.model import cable, frames, rotations
-    from offboard.harness.compiled import px4_loops
+    from offboard.control import smc
+    from offboard.harness.compiled import attitude_law, px4_loops
     from sim_bridge.inner import px4_inner
 
     pairs = [
@@ -231,6 +232,7 @@ def test_the_kernels_compile_the_scalar_paths_own_functions_and_their_cache_foll
         (px4_loops._canonical, px4_inner.canonical),
         (px4_loops._body_z, px4_inner.body_z),
         (px4_loops._shortest_rotation, px4_inner.shortest_rotation),
+        (attitude_law._switching, smc.switching),
     ]
     root = Path(lay.__file__).resolve().parents[3]
     for kernel, scalar in pairs:

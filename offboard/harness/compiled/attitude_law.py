@@ -23,6 +23,7 @@ from dataclasses import replace
 import numpy as np
 
 from estimators.model.vehicle import Vehicle
+from offboard.control import smc
 from offboard.control.smc_attitude import AttitudeParams
 from offboard.harness.compiled.laws import estimate_is_finite
 from offboard.harness.compiled.layout import (
@@ -141,13 +142,9 @@ def attitude_memory() -> np.ndarray:
 
 
 # ---- the law's parts ---------------------------------------------------------------------------------------------
-@inline_kernel
-def _switching(s: float, eps: float, smooth: bool) -> float:
-    """``smc.switching``: ``s / (|s| + eps)`` when ``smooth``, else ``sign(s)`` (0 at 0; a NaN gives +-1 as
-    ``math.copysign`` does)."""
-    if smooth:
-        return s / (abs(s) + eps)
-    return math.copysign(1.0, s) if s != 0.0 else 0.0
+#: ``smc.switching`` (the scalar law's own function, compiled as it is): ``s / (|s| + eps)`` when ``smooth``, else
+#: ``sign(s)`` (0 at 0)
+_switching = inline_kernel(smc.switching)
 
 
 @inline_kernel

@@ -34,6 +34,7 @@ SHARED_SOURCES = (
     "estimators/model/cable.py",
     "estimators/model/frames.py",
     "estimators/model/rotations.py",
+    "offboard/control/smc.py",
     "sim_bridge/inner/px4_inner.py",
     "sim_bridge/plant/dynamics.py",
 )

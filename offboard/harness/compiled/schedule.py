@@ -1,16 +1,10 @@
-"""A run's sensor records and the Kalman filter's events, compiled: when the scalar path's ``SensorSuite`` samples and
-delivers each record and when ``estimators.filters.measured_kf``'s queues fuse it, as numba kernels, with the run's
-generator left in the scalar path's state.
-
-It is one module over 500 lines because it is one replica of the scalar sensors' timing and the filter's queues,
-whose parts share the same state arrays and are best read side by side; much of its length is kernel signatures,
-one argument per line. ``tests/schedule_reference.py`` is the same schedule in Python on the scalar
-``SensorSuite`` itself (the tests' oracle: the same arrays to the last bit).
-
-Before a run, from its generator alone: when each sensor samples (plant steps and times, s), the noise of each
-record (units of its fields), when each record is delivered, and which records the filter fuses at each control
-tick, in which order, with which block advances (the queues of ``estimators.filters.measured_kf``). The kernels
-mirror the scalar sensors and the filter's queues statement by statement:
+"""A run's sensor records and the Kalman filter's events, compiled: before a run, from its generator alone, when the
+scalar path's ``SensorSuite`` samples each record (plant steps and times, s), with which noise (units of its fields),
+when it is delivered, and which records ``estimators.filters.measured_kf``'s queues fuse at each control tick, in which
+order, with which block advances; the run's generator is left in the scalar path's state. Over 500 lines because it
+is one replica of the sensors' timing and the filter's queues, whose parts share the same state arrays; much of it is
+kernel signatures, one argument per line. ``tests/schedule_reference.py`` is its oracle (the same arrays to the bit).
+The kernels mirror the scalar sensors and the filter's queues statement by statement:
 
 - the generator is the run's ``np.random.Generator`` itself, passed into the kernels: numba draws ``uniform``,
   ``random``, ``standard_normal`` and ``normal`` with numpy's own algorithms on the same bit generator, so the
