@@ -14,8 +14,13 @@ the ATTITUDE before the target is sent (ATTITUDE streams at 50 Hz here: within 2
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass
+
+# MAVLink 2 before pymavlink is first imported: mavutil picks its dialect at import (v1.0 without it, which
+# lacks every message above id 255) and that choice holds for the whole process, its other users included
+os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink import mavutil
 

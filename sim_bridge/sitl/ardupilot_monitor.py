@@ -23,9 +23,14 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import threading
 import time
 from dataclasses import dataclass
+
+# MAVLink 2 before pymavlink is first imported: mavutil picks its dialect at import (v1.0 without it, which
+# lacks every message above id 255) and that choice holds for the whole process, its other users included
+os.environ.setdefault("MAVLINK20", "1")
 
 import numpy as np
 from pymavlink import mavutil
