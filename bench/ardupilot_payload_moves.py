@@ -33,8 +33,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
+from offboard.logs.timeseries_file import read_table
 from sim_bridge.sitl.ardupilot_dataflash import MoveFigures, move_figures, read_dataflash
 from sim_bridge.sitl.ardupilot_guided import fly_stock_move
 from sim_bridge.sitl.ardupilot_sitl import ArduPilotSitl
@@ -82,7 +81,7 @@ def fly_slung(
     m = json.loads(metrics.read_text())
     # the loop rate it achieved: a starved loop (a loaded machine) flies worse, and the table says so
     ended = f"{m['flight']['ended_by']} ({m['loop']['rate_hz_achieved']:.0f} Hz)"
-    t = np.genfromtxt(out / "fly" / "timeseries_live.csv", delimiter=",", names=True)["t_vehicle"]
+    t = read_table(out / "fly" / "timeseries_live.slts")["t_vehicle"]
     return float(t[0]), float(t[-1]), ended
 
 

@@ -32,6 +32,7 @@ from offboard.flight.fly_cli import configure, fly  # noqa: E402
 from offboard.flight.link.telemetry import TelemetryDecoder  # noqa: E402
 from offboard.harness.demo_cli import EmulatorThread, free_udp_port  # noqa: E402
 from offboard.logs.runlog import Scenario  # noqa: E402
+from offboard.logs.timeseries_file import read_table  # noqa: E402
 
 BUNDLED = ROOT / "estimators" / "model" / "vehicles" / "ardupilot-sitl-quad.toml"
 
@@ -91,7 +92,7 @@ def main() -> int:
     finally:
         emu.stop()
     print(f"stock move: {m1['flight']['ended_by']}; slung take-over: {m2['flight']['ended_by']}")
-    d = np.genfromtxt(folder / "timeseries_live.csv", delimiter=",", names=True)
+    d = read_table(folder / "timeseries_live.slts")
     t = d["t_vehicle"] - d["t_vehicle"][0]
     true = np.degrees(np.arcsin(np.clip(np.hypot(d["truth_x12"], d["truth_x13"]), 0.0, 1.0)))
     est = np.degrees(np.hypot(d["est_alpha_x"], d["est_alpha_y"]))

@@ -33,6 +33,7 @@ sys.path.insert(0, str(ROOT))
 
 from bench_px4_hover import slung_fly  # noqa: E402 - after the path set-up
 
+from offboard.logs.timeseries_file import read_table  # noqa: E402
 from sim_bridge.sitl.px4_sitl import Px4Sitl  # noqa: E402
 from sim_bridge.sitl.px4_ulog import read_px4_ulog  # noqa: E402
 
@@ -119,7 +120,7 @@ def slung_flight(url: str, height: float, duration: float, out: Path) -> dict[st
     cmd += ["--end", "land", "--settle", "0", "--no-figures", "--out", str(out)]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
     m = json.loads((out / "metrics.json").read_text())
-    d = np.genfromtxt(out / "timeseries_live.csv", delimiter=",", names=True)
+    d = read_table(out / "timeseries_live.slts")
     events = json.loads((out / "events.json").read_text())["loop"]
     ground = [e["reason"] for e in events if "take-off point" in e["reason"]]
     return {
