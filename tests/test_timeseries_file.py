@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import signal
+import struct
 import subprocess
 import sys
 import threading
@@ -18,6 +19,8 @@ import pytest
 
 from estimators.errors import UserError
 from offboard.logs.timeseries_file import (
+    MAGIC,
+    STREAM_BLOCK_ROWS,
     STREAM_PERIOD_S,
     TableStreamer,
     read_table,
@@ -58,12 +61,43 @@ def test_truncated_file_keeps_every_whole_block(tmp_path: Path) -> None:
         sizes.append(s.path.stat().st_size)
     s._fh.close()  # as a killed process leaves it: no end mark
     raw = s.path.read_bytes()
-    for cut, whole in [(len(raw), 9), (sizes[4] + 10, 5), (sizes[4], 5), (sizes[0] - 1, 0)]:
+    # each append of 100 rows is a block of STREAM_BLOCK_ROWS (64) and one of 36
+    for cut, kept in [(len(raw), 900), (sizes[4] + 10, 500), (sizes[4], 500), (sizes[0] - 1, 64), (sizes[0] - 1000, 0)]:
         (tmp_path / "cut.slts").write_bytes(raw[:cut])
         t = read_table(tmp_path / "cut.slts")
         assert not t.complete
-        assert len(t) == 100 * whole
-        assert t.data.tobytes() == d[: 100 * whole].tobytes()
+        assert len(t) == kept
+        assert t.data.tobytes() == d[:kept].tobytes()
+
+
+def test_a_large_append_is_split_so_a_full_disk_loses_one_block(tmp_path: Path) -> None:
+    """What a flight adds between two appends depends on the machine's speed (lockstep flights outrun the wall
+    clock); the streamer writes it in blocks of at most STREAM_BLOCK_ROWS, each flushed, so a write that fails
+    keeps every block before it (CI's full-disk flight once kept none: one 0.5 s block did not fit)."""
+    d = _data(1000)
+    rows: list[tuple[float, ...]] = list(map(tuple, d))
+    s = TableStreamer(tmp_path / "live.slts", COLS, rows)
+    s._append()
+    s._fh.close()
+    blocks = _block_rows(s.path.read_bytes())
+    assert sum(blocks) == 1000 and max(blocks) == STREAM_BLOCK_ROWS and len(blocks) == -(-1000 // STREAM_BLOCK_ROWS)
+    raw = s.path.read_bytes()
+    (tmp_path / "cut.slts").write_bytes(raw[: len(raw) // 2])  # the disk filled half way through the append
+    t = read_table(tmp_path / "cut.slts")
+    assert 0 < len(t) < 1000 and len(t) % STREAM_BLOCK_ROWS == 0 and t.data.tobytes() == d[: len(t)].tobytes()
+
+
+def _block_rows(raw: bytes) -> list[int]:
+    """Rows of each block in a file of this format (header skipped, end mark not counted)."""
+    (n,) = struct.unpack_from("<I", raw, len(MAGIC))
+    pos, out = len(MAGIC) + 4 + n, []
+    while pos + 16 <= len(raw):
+        _, rows, size, _ = struct.unpack_from("<4sIII", raw, pos)
+        if rows == 0:
+            break
+        out.append(rows)
+        pos += 16 + size
+    return out
 
 
 def test_streamer_appends_while_rows_grow(tmp_path: Path) -> None:
