@@ -26,6 +26,7 @@ from offboard.logs.timeseries_file import (
     MAGIC_V1,
     STREAM_BLOCK_ROWS,
     STREAM_PERIOD_S,
+    WHOLE_BLOCK_ROWS,
     TableStreamer,
     read_table,
     table_path,
@@ -58,7 +59,7 @@ def test_each_column_reads_back_at_its_stored_precision(tmp_path: Path) -> None:
     """float64 columns bit for bit, float32 / float16 ones rounded to that type (NaN, inf and -0.0 kept), the delta
     coding exact; a finite value the narrow type would turn into inf keeps its block's column wider."""
     rng = np.random.default_rng(1)
-    n = 10_000
+    n = WHOLE_BLOCK_ROWS + 4000  # two blocks
     d = np.column_stack(
         [
             np.arange(n) * 0.004 + 1e5,  # a time far from 0: float32 would lose it, float64 delta keeps it
@@ -69,7 +70,7 @@ def test_each_column_reads_back_at_its_stored_precision(tmp_path: Path) -> None:
         ]
     )
     d[3, 1], d[4, 2], d[5, 3], d[6, 4] = np.nan, np.inf, -0.0, np.nan
-    d[9000, 3] = 1e6  # beyond float16 (65504): its block keeps that column as float32
+    d[n - 10, 3] = 1e6  # beyond float16 (65504): its block (the second) keeps that column as float32
     d[100, 2] = 1e40  # beyond float32: its block keeps that column as float64
     cols = ("t", "a", "b", "c", "e")
     storage = ("f8 delta", "f4", "f4 delta", "f2", "f2 delta")
@@ -78,8 +79,8 @@ def test_each_column_reads_back_at_its_stored_precision(tmp_path: Path) -> None:
     assert t.complete and t.storage == storage and t.stored_as("a") == np.float32 and t.stored_as("c") == np.float16
     assert t["t"].tobytes() == d[:, 0].tobytes()
     np.testing.assert_array_equal(t["a"], d[:, 1].astype(np.float32))
-    assert t["b"][100] == 1e40 and t["c"][9000] == 1e6 and np.signbit(t["c"][5]) and np.isinf(t["b"][4])
-    block0 = slice(0, 4096)  # the first block has no overflow: rounded
+    assert t["b"][100] == 1e40 and t["c"][n - 10] == 1e6 and np.signbit(t["c"][5]) and np.isinf(t["b"][4])
+    block0 = slice(0, WHOLE_BLOCK_ROWS)  # the first block has no overflow in "c": rounded
     np.testing.assert_array_equal(t["c"][block0], d[block0, 3].astype(np.float16))
     np.testing.assert_array_equal(t["e"], d[:, 4].astype(np.float16))
     assert p.stat().st_size < 0.6 * write_table(tmp_path / "y.slts", cols, d).stat().st_size  # it pays
@@ -102,14 +103,17 @@ def test_a_file_of_the_first_version_is_still_read(tmp_path: Path) -> None:
 
 def test_the_tick_logs_storage_keeps_times_whole_and_the_wire_at_float32() -> None:
     """offboard.logs.live_storage: the columns the replay finds its ticks by stay float64; the estimate, command and
-    the setpoint (float32 on the MAVLink wire) float32; only the filter's account and the timing float16."""
+    the setpoint (float32 on the MAVLink wire) float32; only the filter's account, the law's internals and the
+    timing float16."""
     from offboard.flight.loop_records import LIVE_COLUMNS
 
     kinds = dict(zip(LIVE_COLUMNS, live_storage(LIVE_COLUMNS), strict=True))
     assert all(kinds[c].startswith("f8") for c in ("t_vehicle", "t_ref", "t_local", "n_meas"))
-    assert all(kinds[c] == "f4" for c in LIVE_COLUMNS if c.startswith(("est_", "sp", "cmd_")))
+    assert all(kinds[c] == "f4" for c in LIVE_COLUMNS if c.startswith(("est_", "sp")))
+    assert all(kinds[c] == "f4" for c in ("cmd_thrust", "cmd_tau_phi", "cmd_tau_theta", "cmd_tau_psi"))
+    diagnostics = ("sd_", "nu_", "int_", "cmd_s_", "cmd_sigma_")
     assert {c for c, k in kinds.items() if k.startswith("f2")} == {
-        c for c in LIVE_COLUMNS if c.startswith(("sd_", "nu_")) or c in ("compute_s", "latency_s")
+        c for c in LIVE_COLUMNS if c.startswith(diagnostics) or c in ("compute_s", "latency_s")
     }
     assert live_storage(("something_new",)) == ("f8",)  # unknown: whole
 
