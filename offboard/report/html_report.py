@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from offboard.outputs import write_text_atomic
-from offboard.report.html_plotly import DEFERRED_TYPE, defer, plotly_loader
+from offboard.report.html_plotly import DEFERRED_TYPE, pack, plotly_loader
 from offboard.report.html_view import MAX_POINTS, Animation, display, view_figure
 
 #: events this close outside the plotted range are still drawn (a flight's start and hand-over events fall just
@@ -368,7 +368,7 @@ def render_report_html(
         view, page.frame_dt = view_figure(animation)
         parts.append("<h2>3D view <small>(drag to rotate; ▶ plays at the chosen speed)</small></h2>")
         parts.append(
-            defer(
+            pack(
                 view.to_html(
                     full_html=False, include_plotlyjs=False, div_id="slung-view", config=config, auto_play=False
                 )
@@ -381,7 +381,7 @@ def render_report_html(
             "<h2>Time plots <small>(cursor at t = <span id='slung-cursor'>"
             f"{t_range[0]:.2f}</span> s; click a plot to move the 3D view there)</small></h2>"
         )
-        parts.append(defer(fig.to_html(full_html=False, include_plotlyjs=False, div_id="slung-plots", config=config)))
+        parts.append(pack(fig.to_html(full_html=False, include_plotlyjs=False, div_id="slung-plots", config=config)))
         plotly_loaded = True
     parts.append("<h2>Metrics</h2>" + metrics_tables(metrics))
     parts.append("<h2>Events</h2>" + events_table(events, t_range))
