@@ -23,7 +23,7 @@ from offboard.logs.timeseries_file import read_table
 ROOT = Path(__file__).resolve().parents[1]
 #: bytes any one file of the flight process may reach: metrics.json (8.7 kB) and events.json (3.6 kB) fit, the tlog
 #: (300 kB by the start of control) and the tick log do not: this hover's ticks take 38 bytes each as the folder
-#: stores them since 8 Dec 2026, so 270 fit, and the flight is 6 s (1500 ticks at 250 Hz; a loaded machine, whose
+#: stores them since 7 Dec 2026, so 270 fit, and the flight is 6 s (1500 ticks at 250 Hz; a loaded machine, whose
 #: lockstep emulator may run ahead of the loop, flew 300 in 3 s)
 FILE_LIMIT = 10_000
 

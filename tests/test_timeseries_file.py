@@ -87,7 +87,8 @@ def test_each_column_reads_back_at_its_stored_precision(tmp_path: Path) -> None:
 
 
 def test_a_file_of_the_first_version_is_still_read(tmp_path: Path) -> None:
-    """Run folders written on 7 Dec 2026 hold SLTS1 files: every column float64, blocks without code bytes."""
+    """Run folders written by main 6595949 and before (7 Dec 2026) hold SLTS1 files: every column float64, blocks
+    without code bytes."""
     d = _data(5000)
     head = json.dumps({"columns": list(COLS), "dtype": "<f8", "meta": {}}).encode()
     blocks = b""

@@ -15,7 +15,7 @@ kept float64, whole).
   error integrals ``int_*``, which the replay recomputes and does not read) and the tick's timing
   (``compute_s``, ``latency_s``): three significant digits (a microsecond in a millisecond).
 
-Measured on the 10-minute demo's tick log (152 000 ticks, blocks of 16384 rows, 8 Dec 2026): 579 bytes a tick
+Measured on the 10-minute demo's tick log (152 000 ticks, blocks of 16384 rows, 7 Dec 2026): 579 bytes a tick
 all float64, 199 stored like this (30 MB).
 """
 

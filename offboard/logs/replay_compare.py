@@ -120,8 +120,8 @@ def compare_ticks(
         ok = np.all(np.isfinite(ap), axis=1)
         extra["ap_angle"] = quat_angles(ap[ok], logged[ok, :4]).tolist()
     if live is not None:
-        # at the precision the tick log kept (float32 since 8 Dec 2026, offboard.logs.live_storage): the replay's
-        # value rounded as the live run's was stored, then compared; 0 means identical at that precision
+        # at the precision the tick log kept (float32 since the .slts format's second version: live_storage):
+        # the replay's value rounded as the live run's was stored, then compared; 0: identical at that precision
         ok = live_idx >= 0
         e0 = c["Fx"]
         mine = data[ok, e0 : e0 + len(EST_COLUMNS)].astype(live.est_stored).astype(float)

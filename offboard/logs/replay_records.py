@@ -67,7 +67,7 @@ class LiveRun:
     ``offboard.flight.loop.LIVE_COLUMNS``): tick vehicle time ``t_vehicle`` (s), controller time ``t_ref`` (s),
     cumulative number of measurements pushed to the estimator ``n_meas``, the estimate the controller used (N x 24,
     order :data:`EST_COLUMNS`) and the setpoint's wire fields (N x 8 attitude / N x 4 actuator); ``est_stored`` /
-    ``sp_stored``: the float type the tick log kept them at (float64 in the folders written before 8 Dec 2026,
+    ``sp_stored``: the float type the tick log kept them at (float64 in the folders of the format's first version,
     float32 since: ``offboard.logs.live_storage``), the precision the replay compares at."""
 
     t_vehicle: np.ndarray

@@ -30,8 +30,9 @@ references, and does not help noisy ones). Why not all float64: the low mantissa
 incompressible (the 50 s demo's tick log: 609 bytes a row in float64 whatever the compressor; about 200 as stored
 by :func:`offboard.logs.live_storage.live_storage`).
 
-Files of this format's first version (written on 7 Dec 2026) start with ``b"SLTS1\\n"``: the same blocks without
-code bytes, every column float64 (:func:`read_table` reads both, and the CSV of the folders before those).
+Files of this format's first version (slung up to main 6595949, 7 Dec 2026) start with ``b"SLTS1\\n"``: the same
+blocks without code bytes, every column float64 (:func:`read_table` reads both, and the CSV of the folders before
+those).
 """
 
 from __future__ import annotations
@@ -59,7 +60,7 @@ SUFFIX = ".slts"
 LIVE_LOG_NAME = "timeseries_live" + SUFFIX
 RUN_LOG_NAME = "timeseries" + SUFFIX
 MAGIC = b"SLTS2\n"
-#: the first version (7 Dec 2026): every column float64, no code bytes in a block; still read
+#: the first version (up to main 6595949): every column float64, no code bytes in a block; still read
 MAGIC_V1 = b"SLTS1\n"
 #: code bit of a column stored as the differences of its bit patterns from the previous row's
 DELTA = 0x80
