@@ -83,10 +83,25 @@ def demo_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
             + (["--realtime"] if mode == "realtime" else [])
             + (["--vehicle", "px4-sih", "--scenario", "hover"] if mode == "sih" else [])
             + (["--external-feedforward"] if mode == "feedforward" else [])
+            + (["--emulator-tlog"] if flavor == "ardupilot" else [])  # the emulator's side of the link too
         )
         assert (d / "flight.tlog").is_file() and (d / "timeseries_live.slts").is_file()
         out[name] = d
     return out
+
+
+def test_the_emulators_tlog_is_written_only_when_asked(demo_runs: dict[str, Path]) -> None:
+    """``slung demo`` keeps the link's record in flight.tlog; ``--emulator-tlog`` adds the emulator's view of the
+    same link (every message type the loop logged, seen from the other end), which doubled the folder."""
+    from offboard.logs.tlog import read_messages
+
+    assert not (demo_runs["px4-attitude-lockstep"] / "emulator.tlog").exists()
+    run = demo_runs["ardupilot-attitude-lockstep"]
+    types = {}
+    for name in ("flight.tlog", "emulator.tlog"):
+        msgs, _ = read_messages(run / name)
+        types[name] = {m.get_type() for _, m in msgs}
+    assert {"SET_ATTITUDE_TARGET", "ATTITUDE", "HEARTBEAT"} <= types["flight.tlog"] <= types["emulator.tlog"], types
 
 
 @pytest.mark.parametrize(
