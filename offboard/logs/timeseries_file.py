@@ -71,7 +71,7 @@ _UINT = {8: np.dtype("<u8"), 4: np.dtype("<u4"), 2: np.dtype("<u2")}
 BLOCK_MAGIC = b"SLB1"
 _BLOCK_HEAD = struct.Struct("<4sIII")
 #: rows per block of a file written whole (blocks of 16384 rows made the 10-minute demo's tick log 4 % smaller than
-#: blocks of 4096, and about 25 % smaller than the streamed ones of 64; 16 MB of float64 to code at a time)
+#: blocks of 4096, and 17 % smaller than the streamed ones of 64; 16 MB of float64 to code at a time)
 WHOLE_BLOCK_ROWS = 16384
 #: how often a streamed table appends what the flight added (s): a SIGKILL loses at most this much
 STREAM_PERIOD_S = 0.5
