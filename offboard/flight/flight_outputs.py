@@ -325,7 +325,7 @@ def write_flight_outputs(
             ),
         )
 
-    # the streamed tick log (offboard.flight.fly_cli) rewritten whole, last: complete, and ~20 % smaller in larger
+    # the streamed tick log (offboard.flight.fly_cli) rewritten whole, last: complete, and ~17 % smaller in larger
     # blocks; if it cannot be, the streamed one written during the flight stays
     outputs.attempt(LIVE_LOG_NAME, lambda: write_table(out_dir / LIVE_LOG_NAME, LIVE_COLUMNS, rows, storage=storage))
     m["outputs"]["failed"] += outputs.failed
