@@ -33,6 +33,15 @@ def _columns(path: Path) -> dict[str, np.ndarray]:
     return {name: table.data[:, i] for i, name in enumerate(table.columns)}
 
 
+def _assert_as_kept(replayed: np.ndarray, live_log: Path, name: str) -> None:
+    """The replay's column (float64) is the live tick log's column ``name`` exactly at the precision the tick log
+    kept it (``offboard.logs.live_storage``: float64 times, float32 estimates and setpoints, float16 for the
+    filter's standard deviations and innovations): rounded the same way, every bit equal."""
+    table = read_table(live_log)
+    kept = table.stored_as(name)
+    np.testing.assert_array_equal(replayed.astype(kept), table[name].astype(kept), err_msg=f"{name} ({kept})")
+
+
 # ------------------------------------------------------------------------------------------ slung demo, exact ---
 
 
@@ -74,10 +83,25 @@ def demo_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
             + (["--realtime"] if mode == "realtime" else [])
             + (["--vehicle", "px4-sih", "--scenario", "hover"] if mode == "sih" else [])
             + (["--external-feedforward"] if mode == "feedforward" else [])
+            + (["--emulator-tlog"] if flavor == "ardupilot" else [])  # the emulator's side of the link too
         )
         assert (d / "flight.tlog").is_file() and (d / "timeseries_live.slts").is_file()
         out[name] = d
     return out
+
+
+def test_the_emulators_tlog_is_written_only_when_asked(demo_runs: dict[str, Path]) -> None:
+    """``slung demo`` keeps the link's record in flight.tlog; ``--emulator-tlog`` adds the emulator's view of the
+    same link (every message type the loop logged, seen from the other end), which doubled the folder."""
+    from offboard.logs.tlog import read_messages
+
+    assert not (demo_runs["px4-attitude-lockstep"] / "emulator.tlog").exists()
+    run = demo_runs["ardupilot-attitude-lockstep"]
+    types = {}
+    for name in ("flight.tlog", "emulator.tlog"):
+        msgs, _ = read_messages(run / name)
+        types[name] = {m.get_type() for _, m in msgs}
+    assert {"SET_ATTITUDE_TARGET", "ATTITUDE", "HEARTBEAT"} <= types["flight.tlog"] <= types["emulator.tlog"], types
 
 
 @pytest.mark.parametrize(
@@ -103,7 +127,8 @@ def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
     # normally ~375 ticks; on a heavily loaded machine the lockstep emulator's grace timeout can advance the
     # vehicle without the loop, and the 1.5 s flight has far fewer ticks: still every one must replay exactly
     assert n >= 5 and len(rep["t"]) == n
-    # the replay's own time series against the live loop's, column by column, bit for bit
+    # the replay's own time series against the live loop's, column by column, bit for bit at the precision the
+    # tick log keeps (its times whole, its estimates and setpoints as float32: the wire's)
     np.testing.assert_array_equal(rep["t"], live["t_vehicle"])
     pairs = [
         ("Fx", "est_fx0"),
@@ -126,13 +151,14 @@ def test_replay_of_slung_demo_reproduces_its_estimates_and_setpoints_exactly(
     # the reads changed nothing (the estimates above are bit-identical) and they are themselves reproduced exactly
     pairs += [(name, name) for name in (*SIGMA_COLUMNS, *INNOVATION_COLUMNS)]
     for a, b in pairs:
-        np.testing.assert_array_equal(rep[a], live[b], err_msg=f"{a} vs {b}")
+        _assert_as_kept(rep[a], run / "timeseries_live.slts", b)
     assert np.all(live["sd_fx0"] > 0.0) and np.all(np.isfinite(live["sd_alpha_x"]))
     for stream in ("nu_pos", "nu_tilt"):  # from the stream's first fused record on, every tick has its innovation
         nu = live[stream]
         assert np.isfinite(nu).any() and np.isfinite(nu[int(np.argmax(np.isfinite(nu))) :]).all(), stream
     assert m["live_agreement"]["estimate_identical"] == n
     assert m["live_agreement"]["setpoint_identical"] == n
+    assert m["live_agreement"]["compared_at"] == {"estimate": "float32", "setpoint": "float32"}
     # the run flew the torque-level law with its per-loop boundary layers (docs/model.md C-12), and the replay
     # rebuilt the law with them: one epsilon for all loops would be another law, and other setpoints
     cfg = json.loads((run / "metrics.json").read_text())["config"]
@@ -164,7 +190,7 @@ def test_replay_reproduces_an_attitude_level_law_flight(demo_runs: dict[str, Pat
     n = len(live["t_vehicle"])
     assert n >= 5 and len(rep["t"]) == n
     for a, b in (("cmd_thrust", "cmd_thrust"), ("sp_q_x", "sp1"), ("sp_q_y", "sp2"), ("sp_thrust", "sp7")):
-        np.testing.assert_array_equal(rep[a], live[b], err_msg=f"{a} vs {b}")
+        _assert_as_kept(rep[a], run / "timeseries_live.slts", b)
     assert m["live_agreement"]["setpoint_identical"] == n
     assert m["setpoint_agreement"]["float32_identical"] == n
     # without --vehicle: the vehicle the run recorded in its metrics.json (not the paper's), the same law
@@ -198,7 +224,7 @@ def test_replay_of_slung_demo_from_the_tlog_alone(demo_runs: dict[str, Path], tm
     assert m["live_agreement"] is None
     assert m["setpoint_agreement"]["float32_identical"] == len(live["t_vehicle"])
     np.testing.assert_array_equal(rep["t_ref"], live["t_ref"])
-    np.testing.assert_array_equal(rep["Fx_d4"], live["est_fx4"])
+    _assert_as_kept(rep["Fx_d4"], run / "timeseries_live.slts", "est_fx4")
 
 
 def test_estimate_only_over_a_whole_demo_log(demo_runs: dict[str, Path], tmp_path: Path) -> None:

@@ -22,6 +22,7 @@ from offboard.logs import replay as rp
 from offboard.logs.log_formats import scan_log
 from offboard.logs.replay_health import offset_swing
 from offboard.logs.tlog import TlogReader
+from offboard.report.html_plotly import unpacked
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +75,7 @@ def test_the_report_shows_the_payload_truth(
     assert "swing vs payload truth" in text
     m = json.loads((out / "metrics.json").read_text())
     assert m["log"]["payload_truth"] == "SLUP" and m["estimation"]["swing_vs_truth"]["ticks"] > 1500
-    html = (out / "report.html").read_text()
+    html = unpacked((out / "report.html").read_text())  # the figures' scripts, packed in the page
     assert "alpha_x payload truth" in html and "alpha_y payload truth" in html
     assert (out / "swing.png").stat().st_size > 10_000 and (out / "attitude_vs_autopilot.png").is_file()
 

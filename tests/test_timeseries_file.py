@@ -5,6 +5,7 @@ kill."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import struct
@@ -12,16 +13,20 @@ import subprocess
 import sys
 import threading
 import time
+import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from estimators.errors import UserError
+from offboard.logs.live_storage import live_storage
 from offboard.logs.timeseries_file import (
     MAGIC,
+    MAGIC_V1,
     STREAM_BLOCK_ROWS,
     STREAM_PERIOD_S,
+    WHOLE_BLOCK_ROWS,
     TableStreamer,
     read_table,
     table_path,
@@ -48,6 +53,70 @@ def test_round_trip_is_bit_exact(tmp_path: Path) -> None:
     assert t.data.tobytes() == d.tobytes()  # every bit, NaN, inf and -0.0 included
     assert np.isnan(t["a"][3]) and np.isinf(t["b"][4]) and np.signbit(t["b"][5])
     assert p.stat().st_size < d.nbytes  # compressed
+
+
+def test_each_column_reads_back_at_its_stored_precision(tmp_path: Path) -> None:
+    """float64 columns bit for bit, float32 / float16 ones rounded to that type (NaN, inf and -0.0 kept), the delta
+    coding exact; a finite value the narrow type would turn into inf keeps its block's column wider."""
+    rng = np.random.default_rng(1)
+    n = WHOLE_BLOCK_ROWS + 4000  # two blocks
+    d = np.column_stack(
+        [
+            np.arange(n) * 0.004 + 1e5,  # a time far from 0: float32 would lose it, float64 delta keeps it
+            rng.standard_normal(n),
+            np.cumsum(rng.standard_normal(n)) * 1e-3,
+            np.abs(rng.standard_normal(n)) * 0.01,
+            rng.standard_normal(n),
+        ]
+    )
+    d[3, 1], d[4, 2], d[5, 3], d[6, 4] = np.nan, np.inf, -0.0, np.nan
+    d[n - 10, 3] = 1e6  # beyond float16 (65504): its block (the second) keeps that column as float32
+    d[100, 2] = 1e40  # beyond float32: its block keeps that column as float64
+    cols = ("t", "a", "b", "c", "e")
+    storage = ("f8 delta", "f4", "f4 delta", "f2", "f2 delta")
+    p = write_table(tmp_path / "x.slts", cols, d, storage=storage)
+    t = read_table(p)
+    assert t.complete and t.storage == storage and t.stored_as("a") == np.float32 and t.stored_as("c") == np.float16
+    assert t["t"].tobytes() == d[:, 0].tobytes()
+    np.testing.assert_array_equal(t["a"], d[:, 1].astype(np.float32))
+    assert t["b"][100] == 1e40 and t["c"][n - 10] == 1e6 and np.signbit(t["c"][5]) and np.isinf(t["b"][4])
+    block0 = slice(0, WHOLE_BLOCK_ROWS)  # the first block has no overflow in "c": rounded
+    np.testing.assert_array_equal(t["c"][block0], d[block0, 3].astype(np.float16))
+    np.testing.assert_array_equal(t["e"], d[:, 4].astype(np.float16))
+    assert p.stat().st_size < 0.6 * write_table(tmp_path / "y.slts", cols, d).stat().st_size  # it pays
+
+
+def test_a_file_of_the_first_version_is_still_read(tmp_path: Path) -> None:
+    """Run folders written by main 6595949 and before (7 Dec 2026) hold SLTS1 files: every column float64, blocks
+    without code bytes."""
+    d = _data(5000)
+    head = json.dumps({"columns": list(COLS), "dtype": "<f8", "meta": {}}).encode()
+    blocks = b""
+    for i in range(0, len(d), 4096):
+        a = np.ascontiguousarray(d[i : i + 4096].T)
+        payload = zlib.compress(a.view(np.uint8).reshape(a.shape[0], a.shape[1], 8).transpose(0, 2, 1).tobytes())
+        blocks += struct.pack("<4sIII", b"SLB1", a.shape[1], len(payload), zlib.crc32(payload)) + payload
+    raw = MAGIC_V1 + struct.pack("<I", len(head)) + head + blocks + struct.pack("<4sIII", b"SLB1", 0, 0, 0)
+    (tmp_path / "old.slts").write_bytes(raw)
+    t = read_table(tmp_path / "old.slts")
+    assert t.complete and t.columns == COLS and t.storage == ("f8",) * 3 and t.data.tobytes() == d.tobytes()
+
+
+def test_the_tick_logs_storage_keeps_times_whole_and_the_wire_at_float32() -> None:
+    """offboard.logs.live_storage: the columns the replay finds its ticks by stay float64; the estimate, command and
+    the setpoint (float32 on the MAVLink wire) float32; only the filter's account, the law's internals and the
+    timing float16."""
+    from offboard.flight.loop_records import LIVE_COLUMNS
+
+    kinds = dict(zip(LIVE_COLUMNS, live_storage(LIVE_COLUMNS), strict=True))
+    assert all(kinds[c].startswith("f8") for c in ("t_vehicle", "t_ref", "t_local", "n_meas"))
+    assert all(kinds[c] == "f4" for c in LIVE_COLUMNS if c.startswith(("est_", "sp")))
+    assert all(kinds[c] == "f4" for c in ("cmd_thrust", "cmd_tau_phi", "cmd_tau_theta", "cmd_tau_psi"))
+    diagnostics = ("sd_", "nu_", "int_", "cmd_s_", "cmd_sigma_")
+    assert {c for c, k in kinds.items() if k.startswith("f2")} == {
+        c for c in LIVE_COLUMNS if c.startswith(diagnostics) or c in ("compute_s", "latency_s")
+    }
+    assert live_storage(("something_new",)) == ("f8",)  # unknown: whole
 
 
 def test_truncated_file_keeps_every_whole_block(tmp_path: Path) -> None:

@@ -26,9 +26,15 @@ from offboard.flight.loop import (
 )
 from offboard.flight.supervisor import exit_code
 from offboard.logs.estimate_columns import SIGMA_COLUMNS
+from offboard.logs.live_storage import live_storage
 from offboard.logs.runlog import COL, LOG_COLUMNS, Scenario, SimConfig, SimLog
 from offboard.logs.timeseries_file import LIVE_LOG_NAME, write_table
 from offboard.outputs import OutputFailures, write_json_atomic
+
+#: rate of a flight's ``timeseries.slts`` (the ``slung sim`` columns, Hz): an overview for tools that read runs of
+#: both kinds; the flight's full record is its tick log (``timeseries_live.slts``, every tick), from which these
+#: columns are computed. At ``slung sim``'s 100 Hz it was the second largest file of a 10-minute flight (36 MB).
+FLIGHT_TIMESERIES_RATE_HZ = 10.0
 
 
 def settle_summary(rows: np.ndarray, result: FlightResult, vehicle: Vehicle) -> dict[str, Any]:
@@ -302,7 +308,8 @@ def write_flight_outputs(
     }
     m["outputs"] = {"failed": [f for f in (link.get("tlog_failure"), link.get("live_log_failure")) if f]}
     outputs.attempt("metrics.json", lambda: write_json_atomic(out_dir / "metrics.json", m))
-    if len(rows) >= 2:  # then timeseries.csv and the figures (the report writes metrics.json again, the same)
+    storage = live_storage(LIVE_COLUMNS)
+    if len(rows) >= 2:  # then timeseries.slts and the figures (the report writes metrics.json again, the same)
         outputs.attempt(
             "timeseries.slts or the report's figures",
             lambda: report.write_report(
@@ -314,12 +321,13 @@ def write_flight_outputs(
                 live=rows[in_ref],  # the same ticks as the log (the settle after the end is not drawn)
                 live_col=LIVE_COL,
                 events=events,
+                timeseries_rate_hz=FLIGHT_TIMESERIES_RATE_HZ,
             ),
         )
 
-    # the streamed tick log (offboard.flight.fly_cli) rewritten whole, last: complete, and ~10 % smaller in larger
+    # the streamed tick log (offboard.flight.fly_cli) rewritten whole, last: complete, and ~17 % smaller in larger
     # blocks; if it cannot be, the streamed one written during the flight stays
-    outputs.attempt(LIVE_LOG_NAME, lambda: write_table(out_dir / LIVE_LOG_NAME, LIVE_COLUMNS, rows))
+    outputs.attempt(LIVE_LOG_NAME, lambda: write_table(out_dir / LIVE_LOG_NAME, LIVE_COLUMNS, rows, storage=storage))
     m["outputs"]["failed"] += outputs.failed
     if outputs.failed:  # say so in metrics.json too, if it can still be written (a small file: it often can)
         with contextlib.suppress(OSError):

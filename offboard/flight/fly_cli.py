@@ -55,6 +55,7 @@ from offboard.flight.loop import (
 from offboard.flight.loop_records import LIVE_COLUMNS
 from offboard.flight.status import FlightStatus
 from offboard.flight.supervisor import exit_code, tracking_limit_for
+from offboard.logs.live_storage import live_storage
 from offboard.logs.runlog import Scenario
 from offboard.logs.timeseries_file import LIVE_LOG_NAME, TableStreamer
 from offboard.outputs import prepare_output_dir, write_json_atomic
@@ -295,7 +296,9 @@ def fly(
         if status is not None:
             status.attach(loop)
         # the tick log on disk while the loop runs (a block every 0.5 s): a killed flight leaves its ticks
-        live_stream = TableStreamer(out_dir / LIVE_LOG_NAME, LIVE_COLUMNS, loop.rows).start()
+        live_stream = TableStreamer(
+            out_dir / LIVE_LOG_NAME, LIVE_COLUMNS, loop.rows, storage=live_storage(LIVE_COLUMNS)
+        ).start()
         try:
             result = loop.run()
         except UserError as exc:  # refused or impossible before the flight: the folder still says what happened

@@ -6,7 +6,8 @@ metrics table and writes a report folder (figures, metrics, tlog) whose path it 
 Usage::
 
     slung demo [--flavor px4|ardupilot] [--realtime] [--output attitude|actuator] [--duration S] [--rate HZ]
-               [--sensors px4-typical|px4-fast|ideal] [--seed N] [--disturbance paper|none] [--out DIR]
+               [--sensors px4-typical|px4-fast|ideal] [--seed N] [--disturbance paper|none] [--emulator-tlog]
+               [--out DIR]
 
 By default the demo IS ``slung sim``'s paper scenario over the wire: the emulator's telemetry has the
 ``px4-typical`` sensor models (noise, bias, latency), the paper's disturbances start 25 s after the loop's
@@ -85,6 +86,12 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="emulated plant rotation model (default rigid)",
     )
     p.add_argument("--loss", type=float, default=0.0, help="emulated packet loss probability, both directions")
+    p.add_argument(
+        "--emulator-tlog",
+        action="store_true",
+        help="also write the emulator's own tlog (emulator.tlog): the same link as flight.tlog seen from the "
+        "autopilot's end, for debugging the link (doubles the folder's size)",
+    )
     add_flight_arguments(p, demo=True)
     p.add_argument("--out", metavar="DIR", help="report folder (default runs/demo-<timestamp>)")
 
@@ -225,7 +232,8 @@ def run_demo(
         attitude_model=args.attitude_model,
         noise=args.noise,
         loss=args.loss,
-        tlog=out / "emulator.tlog",
+        # the link's record is flight.tlog; the emulator's mirror of it only when asked (it doubled the folder)
+        tlog=out / "emulator.tlog" if getattr(args, "emulator_tlog", False) else None,
         sensors=args.sensors,
         seed=args.seed,
         disturbance=args.disturbance,

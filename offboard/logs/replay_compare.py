@@ -120,13 +120,17 @@ def compare_ticks(
         ok = np.all(np.isfinite(ap), axis=1)
         extra["ap_angle"] = quat_angles(ap[ok], logged[ok, :4]).tolist()
     if live is not None:
+        # at the precision the tick log kept (float32 since the .slts format's second version: live_storage):
+        # the replay's value rounded as the live run's was stored, then compared; 0: identical at that precision
         ok = live_idx >= 0
         e0 = c["Fx"]
-        d_est = np.max(np.abs(data[ok, e0 : e0 + len(EST_COLUMNS)] - live.est[live_idx[ok]]), axis=1)
+        mine = data[ok, e0 : e0 + len(EST_COLUMNS)].astype(live.est_stored).astype(float)
+        d_est = np.max(np.abs(mine - live.est[live_idx[ok]]), axis=1)
         data[ok, c["live_est_diff"]] = d_est
         extra["live_est"] = d_est.tolist()
+        extra["live_compared_at"] = {"estimate": live.est_stored.name, "setpoint": live.sp_stored.name}
         if controller_ran:
-            d_sp = np.max(np.abs(rec[ok] - live.sp[live_idx[ok], :nsp]), axis=1)
+            d_sp = np.max(np.abs(rec[ok].astype(live.sp_stored).astype(float) - live.sp[live_idx[ok], :nsp]), axis=1)
             data[ok, c["live_sp_diff"]] = d_sp
             extra["live_sp"] = d_sp.tolist()
 
@@ -231,6 +235,8 @@ def replay_metrics(
             "ticks": len(le),
             "estimate_max_abs_difference": float(np.max(le)),
             "estimate_identical": int(np.sum(le == 0.0)),
+            # the precision of those comparisons: the tick log's (float64 whole, or float32 as the folder keeps it)
+            "compared_at": extra.get("live_compared_at"),
         }
         if extra.get("live_sp"):
             ls = np.asarray(extra["live_sp"])

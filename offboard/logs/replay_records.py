@@ -58,18 +58,25 @@ class LiveLogMismatchError(ValueError):
     """The live tick log given to the replay does not belong to the tlog."""
 
 
+_FLOAT64 = np.dtype("<f8")
+
+
 @dataclass(frozen=True)
 class LiveRun:
     """The live loop's own per-tick log (``timeseries_live.slts`` of ``slung fly`` / ``slung demo``; columns of
     ``offboard.flight.loop.LIVE_COLUMNS``): tick vehicle time ``t_vehicle`` (s), controller time ``t_ref`` (s),
     cumulative number of measurements pushed to the estimator ``n_meas``, the estimate the controller used (N x 24,
-    order :data:`EST_COLUMNS`) and the setpoint's wire fields (N x 8 attitude / N x 4 actuator, full precision)."""
+    order :data:`EST_COLUMNS`) and the setpoint's wire fields (N x 8 attitude / N x 4 actuator); ``est_stored`` /
+    ``sp_stored``: the float type the tick log kept them at (float64 in the folders of the format's first version,
+    float32 since: ``offboard.logs.live_storage``), the precision the replay compares at."""
 
     t_vehicle: np.ndarray
     t_ref: np.ndarray
     n_meas: np.ndarray
     est: np.ndarray
     sp: np.ndarray
+    est_stored: np.dtype = _FLOAT64
+    sp_stored: np.dtype = _FLOAT64
 
 
 LIVE_EST_NAMES = EST_NAMES  # the loop's estimate columns, read back
@@ -94,7 +101,17 @@ def load_live_table(path: Any) -> LiveRun | None:
     sp = data[:, sp_cols]
     if sp.shape[1] >= 8 and np.all(np.isnan(sp[:, 4:8])):
         sp = sp[:, :4]
-    return LiveRun(data[:, idx["t_vehicle"]], data[:, idx["t_ref"]], data[:, idx["n_meas"]].astype(int), est, sp)
+    est_stored = max((table.stored_as("est_" + n) for n in LIVE_EST_NAMES), key=lambda d: d.itemsize)
+    sp_stored = max((table.stored_as(f"sp{i}") for i in range(4)), key=lambda d: d.itemsize)
+    return LiveRun(
+        data[:, idx["t_vehicle"]],
+        data[:, idx["t_ref"]],
+        data[:, idx["n_meas"]].astype(int),
+        est,
+        sp,
+        est_stored,
+        sp_stored,
+    )
 
 
 @dataclass(frozen=True)

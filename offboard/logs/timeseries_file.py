@@ -11,14 +11,28 @@ companion computer installs nothing more); ``slung export --csv RUN`` writes CSV
 
 Layout (little-endian)::
 
-    b"SLTS1\\n", uint32 n, n bytes of UTF-8 JSON {"columns": [...], "dtype": "<f8", "meta": {...}}
+    b"SLTS2\\n", uint32 n, n bytes of UTF-8 JSON {"columns": [...], "storage": [...], "meta": {...}}
     block*:  b"SLB1", uint32 rows, uint32 payload bytes, uint32 CRC-32 of the payload, payload
     end:     b"SLB1", uint32 0, uint32 0, uint32 0  (written by a clean close: the file is complete)
 
-A payload is zlib of the block's values, column after column, each column's 8-byte values byte-shuffled (the
-first bytes of every value, then the second bytes, ...): the exponent and high mantissa bytes of a signal change
-slowly and compress, the noisy low bytes cannot. Every value is stored as the float64 the run computed (nothing
-rounded: ``slung replay`` compares its estimates and setpoints with the live run's to the bit).
+A payload is zlib of one code byte per column (how the block stores it: its width in bytes, 8, 4 or 2 for
+IEEE float64 / float32 / float16, plus :data:`DELTA` when the column's bit patterns are stored as differences from
+the previous row's) followed by the columns, one after the other, each column's values byte-shuffled (the first
+bytes of every value, then the second bytes, ...): the exponent and high mantissa bytes of a signal change slowly
+and compress, the noisy low bytes cannot.
+
+**What is stored at what precision** is the writer's ``storage``, one entry per column (:data:`STORAGE_KINDS`;
+the header lists them, :attr:`Table.storage` gives them back): ``"f8"`` keeps the float64 the run computed, bit
+for bit; ``"f4"`` / ``"f2"`` keep it rounded to float32 / float16 (a block whose finite value would overflow the
+narrower type keeps that column one size wider: no finite value is ever stored as inf); a ``" delta"`` suffix
+codes the column as differences of its bit patterns (exact; it halves smooth signals such as times and
+references, and does not help noisy ones). Why not all float64: the low mantissa bytes of a noisy float64 are
+incompressible (the 50 s demo's tick log: 609 bytes a row in float64 whatever the compressor; about 200 as stored
+by :func:`offboard.logs.live_storage.live_storage`).
+
+Files of this format's first version (slung up to main 6595949, 7 Dec 2026) start with ``b"SLTS1\\n"``: the same
+blocks without code bytes, every column float64 (:func:`read_table` reads both, and the CSV of the folders before
+those).
 """
 
 from __future__ import annotations
@@ -45,11 +59,20 @@ SUFFIX = ".slts"
 #: the live loop's tick log and the run's time series (``SimLog`` columns) in a run folder
 LIVE_LOG_NAME = "timeseries_live" + SUFFIX
 RUN_LOG_NAME = "timeseries" + SUFFIX
-MAGIC = b"SLTS1\n"
+MAGIC = b"SLTS2\n"
+#: the first version (up to main 6595949): every column float64, no code bytes in a block; still read
+MAGIC_V1 = b"SLTS1\n"
+#: code bit of a column stored as the differences of its bit patterns from the previous row's
+DELTA = 0x80
+#: storage of a column: its type (``"f8"`` float64, ``"f4"`` float32, ``"f2"`` float16), optionally ``" delta"``
+STORAGE_KINDS = ("f8", "f4", "f2", "f8 delta", "f4 delta", "f2 delta")
+_FLOAT = {8: np.dtype("<f8"), 4: np.dtype("<f4"), 2: np.dtype("<f2")}
+_UINT = {8: np.dtype("<u8"), 4: np.dtype("<u4"), 2: np.dtype("<u2")}
 BLOCK_MAGIC = b"SLB1"
 _BLOCK_HEAD = struct.Struct("<4sIII")
-#: rows per block of a file written whole (larger blocks compress about 10 % better than the streamed ones)
-WHOLE_BLOCK_ROWS = 4096
+#: rows per block of a file written whole (blocks of 16384 rows made the 10-minute demo's tick log 4 % smaller than
+#: blocks of 4096, and 17 % smaller than the streamed ones of 64; 16 MB of float64 to code at a time)
+WHOLE_BLOCK_ROWS = 16384
 #: how often a streamed table appends what the flight added (s): a SIGKILL loses at most this much
 STREAM_PERIOD_S = 0.5
 #: most rows in one streamed block (a quarter second of a 250 Hz loop; blocks of 64 to 4096 rows of a demo differ
@@ -63,12 +86,15 @@ _ZLIB_LEVEL = 6
 @dataclass(frozen=True)
 class Table:
     """A time series read back: ``columns`` (names), ``data`` (rows x columns, float64), ``complete`` (False: the
-    file ends without its end mark, e.g. the flight was killed; ``data`` holds every whole block), ``meta``."""
+    file ends without its end mark, e.g. the flight was killed; ``data`` holds every whole block), ``meta``,
+    ``storage`` (per column, :data:`STORAGE_KINDS`: the precision it was kept at; all ``"f8"`` for the older
+    formats)."""
 
     columns: tuple[str, ...]
     data: np.ndarray
     complete: bool = True
     meta: dict[str, Any] = field(default_factory=dict)
+    storage: tuple[str, ...] = ()
 
     def __getitem__(self, name: str) -> np.ndarray:
         """One column by name (KeyError if absent)."""
@@ -82,32 +108,97 @@ class Table:
         """Column name -> index."""
         return {n: i for i, n in enumerate(self.columns)}
 
+    def stored_as(self, name: str) -> np.dtype:
+        """The float type column ``name`` was kept at (float64 when the file does not say)."""
+        kinds = self.storage or ("f8",) * len(self.columns)
+        return _FLOAT[int(kinds[self.index[name]][1])]
 
-def _header(columns: Sequence[str], meta: dict[str, Any] | None) -> bytes:
-    body = json.dumps({"columns": list(columns), "dtype": "<f8", "meta": meta or {}}).encode("utf-8")
+
+def _parse_storage(columns: Sequence[str], storage: Sequence[str] | None) -> list[tuple[int, bool]]:
+    """(width in bytes, delta) per column; ``None``: every column float64, as computed."""
+    if storage is None:
+        return [(8, False)] * len(columns)
+    if len(storage) != len(columns) or any(k not in STORAGE_KINDS for k in storage):
+        raise ValueError(f"storage must give one of {STORAGE_KINDS} per column")
+    return [(int(k[1]), k.endswith(" delta")) for k in storage]
+
+
+def _narrowed(col: np.ndarray, width: int) -> tuple[np.ndarray, int]:
+    """``col`` (float64) rounded to ``width`` bytes, widened until no finite value becomes inf; (values, width)."""
+    while width < 8:
+        with np.errstate(over="ignore"):  # an overflow is found just below, and widens
+            v = col.astype(_FLOAT[width])
+        if not np.any(np.isfinite(col) & ~np.isfinite(v)):
+            return v, width
+        width *= 2
+    return col.astype(_FLOAT[8]), 8
+
+
+def _header(columns: Sequence[str], storage: Sequence[str] | None, meta: dict[str, Any] | None) -> bytes:
+    kinds = list(storage) if storage is not None else ["f8"] * len(columns)
+    body = json.dumps({"columns": list(columns), "storage": kinds, "meta": meta or {}}).encode("utf-8")
     return MAGIC + struct.pack("<I", len(body)) + body
 
 
-def encode_block(rows: np.ndarray) -> bytes:
-    """One block of ``rows`` (n x columns, converted to float64), head and payload."""
-    a = np.ascontiguousarray(np.asarray(rows, dtype="<f8").T)  # column after column
-    shuffled = a.view(np.uint8).reshape(a.shape[0], a.shape[1], 8).transpose(0, 2, 1).tobytes()
-    payload = zlib.compress(shuffled, _ZLIB_LEVEL)
-    return _BLOCK_HEAD.pack(BLOCK_MAGIC, rows.shape[0], len(payload), zlib.crc32(payload)) + payload
+def encode_block(rows: np.ndarray, storage: Sequence[str] | None = None) -> bytes:
+    """One block of ``rows`` (n x columns, converted to float64) stored as ``storage`` says (None: all float64),
+    head and payload."""
+    a = np.asarray(rows, dtype="<f8")
+    kinds = _parse_storage(range(a.shape[1]), storage)
+    codes, parts = bytearray(), []
+    for j, (width, delta) in enumerate(kinds):
+        v, width = _narrowed(np.ascontiguousarray(a[:, j]), width)
+        u = v.view(_UINT[width])
+        if delta and len(u) > 1:
+            u = np.concatenate((u[:1], np.diff(u)))  # unsigned: wraps, and the reader's cumsum wraps back
+        codes.append(width | (DELTA if delta else 0))
+        parts.append(u.view(np.uint8).reshape(-1, width).T.tobytes())  # byte-shuffled
+    payload = zlib.compress(bytes(codes) + b"".join(parts), _ZLIB_LEVEL)
+    return _BLOCK_HEAD.pack(BLOCK_MAGIC, a.shape[0], len(payload), zlib.crc32(payload)) + payload
+
+
+def _decode_v2(raw: bytes, n_columns: int, rows: int) -> np.ndarray:
+    """The rows x columns float64 of a block's decompressed payload (ValueError if it does not decode)."""
+    codes, pos = raw[:n_columns], n_columns
+    if len(codes) != n_columns:
+        raise ValueError("short block")
+    out = np.empty((rows, n_columns))
+    for j, code in enumerate(codes):
+        width = code & ~DELTA
+        if width not in _FLOAT:
+            raise ValueError(f"unknown column code {code}")
+        size = width * rows
+        b = np.frombuffer(raw, dtype=np.uint8, count=size, offset=pos).reshape(width, rows).T.copy()
+        u = b.view(_UINT[width]).reshape(rows)
+        if code & DELTA:
+            u = np.cumsum(u, dtype=_UINT[width])
+        out[:, j] = u.view(_FLOAT[width])
+        pos += size
+    if pos != len(raw):
+        raise ValueError("block length")
+    return out
 
 
 _END = _BLOCK_HEAD.pack(BLOCK_MAGIC, 0, 0, 0)
 
 
-def write_table(path: str | Path, columns: Sequence[str], data: np.ndarray, meta: dict[str, Any] | None = None) -> Path:
-    """Write a whole table atomically (complete, with its end mark); returns the path."""
+def write_table(
+    path: str | Path,
+    columns: Sequence[str],
+    data: np.ndarray,
+    meta: dict[str, Any] | None = None,
+    storage: Sequence[str] | None = None,
+) -> Path:
+    """Write a whole table atomically (complete, with its end mark); returns the path. ``storage``: per column,
+    :data:`STORAGE_KINDS` (None: every column float64, as computed)."""
     data = np.asarray(data, dtype=float).reshape(-1, len(columns))
+    _parse_storage(columns, storage)  # a wrong storage fails here, before the file is touched
 
     def write(p: Path) -> None:
         with open(p, "wb") as fh:
-            fh.write(_header(columns, meta))
+            fh.write(_header(columns, storage, meta))
             for i in range(0, len(data), WHOLE_BLOCK_ROWS):
-                fh.write(encode_block(data[i : i + WHOLE_BLOCK_ROWS]))
+                fh.write(encode_block(data[i : i + WHOLE_BLOCK_ROWS], storage))
             fh.write(_END)
 
     return write_atomic(path, write)
@@ -120,11 +211,20 @@ class TableStreamer:
     first block (a flight refused before its first tick leaves none). A write failure (full disk) stops the
     stream and is kept in ``failure`` (one line); the flight goes on, as with the tlog."""
 
-    def __init__(self, path: str | Path, columns: Sequence[str], rows: list[Any], meta: dict[str, Any] | None = None):
+    def __init__(
+        self,
+        path: str | Path,
+        columns: Sequence[str],
+        rows: list[Any],
+        meta: dict[str, Any] | None = None,
+        storage: Sequence[str] | None = None,
+    ):
         self.path = Path(path)
         self.columns = tuple(columns)
         self.rows = rows
         self.meta = meta
+        self.storage = None if storage is None else tuple(storage)
+        _parse_storage(self.columns, self.storage)
         self.written = 0
         self.failure: str | None = None
         self._fh: BinaryIO | None = None
@@ -148,8 +248,8 @@ class TableStreamer:
                 if self._fh is None:
                     self._fh = open(self.path, "wb")  # noqa: SIM115 (held open for the flight)
                     self.path.chmod(user_file_mode())
-                    self._fh.write(_header(self.columns, self.meta))
-                self._fh.write(encode_block(block))
+                    self._fh.write(_header(self.columns, self.storage, self.meta))
+                self._fh.write(encode_block(block, self.storage))
                 self._fh.flush()
             except OSError as exc:
                 self.failure = f"{self.path.name}: stopped writing ({exc.strerror or exc})"
@@ -182,7 +282,8 @@ def read_table(path: str | Path) -> Table:
         raw = p.read_bytes()
     except OSError as exc:
         raise UserError(f"cannot read {p}: {exc.strerror or exc}") from None
-    if not raw.startswith(MAGIC):
+    version = 2 if raw.startswith(MAGIC) else 1 if raw.startswith(MAGIC_V1) else 0
+    if not version:
         return _read_csv(p, raw)
     if len(raw) < len(MAGIC) + 4:
         raise UserError(f"{p}: truncated before its column names")
@@ -191,6 +292,8 @@ def read_table(path: str | Path) -> Table:
     try:
         head = json.loads(raw[start : start + n].decode("utf-8"))
         columns = tuple(head["columns"])
+        storage = tuple(head.get("storage") or ("f8",) * len(columns))
+        _parse_storage(columns, storage)
     except (ValueError, KeyError, TypeError):
         raise UserError(f"{p}: unreadable header (not a slung time series?)") from None
     pos, blocks, complete = start + n, [], False
@@ -205,14 +308,17 @@ def read_table(path: str | Path) -> Table:
         if len(payload) < size or zlib.crc32(payload) != crc:
             break  # the block being written when the writer stopped
         try:
-            flat = np.frombuffer(zlib.decompress(payload), dtype=np.uint8)
-            values = flat.reshape(len(columns), 8, rows).transpose(0, 2, 1).copy().view("<f8")
+            if version == 1:
+                flat = np.frombuffer(zlib.decompress(payload), dtype=np.uint8)
+                values = flat.reshape(len(columns), 8, rows).transpose(0, 2, 1).copy().view("<f8")
+                blocks.append(values.reshape(len(columns), rows).T)
+            else:
+                blocks.append(_decode_v2(zlib.decompress(payload), len(columns), rows))
         except (zlib.error, ValueError):
             break  # a block that does not decode as its head says: keep what came before it
-        blocks.append(values.reshape(len(columns), rows).T)
         pos += _BLOCK_HEAD.size + size
     data = np.concatenate(blocks) if blocks else np.empty((0, len(columns)))
-    return Table(columns, np.ascontiguousarray(data, dtype=float), complete, dict(head.get("meta") or {}))
+    return Table(columns, np.ascontiguousarray(data, dtype=float), complete, dict(head.get("meta") or {}), storage)
 
 
 def _read_csv(p: Path, raw: bytes) -> Table:
@@ -228,7 +334,7 @@ def _read_csv(p: Path, raw: bytes) -> Table:
     except (UnicodeDecodeError, ValueError):
         raise UserError(f"{p}: neither a slung time series ({SUFFIX}) nor CSV") from None
     data = data.reshape(-1, len(columns))
-    return Table(columns, data, complete=True)
+    return Table(columns, data, complete=True, storage=("f8",) * len(columns))
 
 
 def table_path(folder: str | Path, stem: str) -> Path | None:
@@ -252,7 +358,9 @@ def write_csv(table: Table, path: str | Path) -> Path:
 
 __all__ = [
     "LIVE_LOG_NAME",
+    "MAGIC_V1",
     "RUN_LOG_NAME",
+    "STORAGE_KINDS",
     "STREAM_PERIOD_S",
     "SUFFIX",
     "Table",

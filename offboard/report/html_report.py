@@ -3,8 +3,8 @@
 The page holds an animated 3D view (vehicle, cable and load along the reference; play, pause, a time slider and
 playback speeds), a column of time plots that share one time axis and one cursor (the cursor follows the
 animation; clicking a time plot moves the animation there), the run's events on the time axis, and the metrics
-as tables. Plotly draws everything (its JavaScript is embedded, ``include_plotlyjs=True``: no CDN, no network
-request); a few lines of glue JavaScript link the cursor.
+as tables. Plotly draws everything (its JavaScript is embedded, compressed: ``offboard.report.html_plotly``; no CDN,
+no network request); a few lines of glue JavaScript link the cursor.
 
 The API is small and neutral, so that every command writes its report the same way::
 
@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from offboard.outputs import write_text_atomic
+from offboard.report.html_plotly import DEFERRED_TYPE, pack, plotly_loader
 from offboard.report.html_view import MAX_POINTS, Animation, display, view_figure
 
 #: events this close outside the plotted range are still drawn (a flight's start and hand-over events fall just
@@ -367,7 +368,11 @@ def render_report_html(
         view, page.frame_dt = view_figure(animation)
         parts.append("<h2>3D view <small>(drag to rotate; ▶ plays at the chosen speed)</small></h2>")
         parts.append(
-            view.to_html(full_html=False, include_plotlyjs=True, div_id="slung-view", config=config, auto_play=False)
+            pack(
+                view.to_html(
+                    full_html=False, include_plotlyjs=False, div_id="slung-view", config=config, auto_play=False
+                )
+            )
         )
         plotly_loaded = True
     if panels:
@@ -376,9 +381,7 @@ def render_report_html(
             "<h2>Time plots <small>(cursor at t = <span id='slung-cursor'>"
             f"{t_range[0]:.2f}</span> s; click a plot to move the 3D view there)</small></h2>"
         )
-        parts.append(
-            fig.to_html(full_html=False, include_plotlyjs=not plotly_loaded, div_id="slung-plots", config=config)
-        )
+        parts.append(pack(fig.to_html(full_html=False, include_plotlyjs=False, div_id="slung-plots", config=config)))
         plotly_loaded = True
     parts.append("<h2>Metrics</h2>" + metrics_tables(metrics))
     parts.append("<h2>Events</h2>" + events_table(events, t_range))
@@ -389,7 +392,7 @@ def render_report_html(
         f"<h1>{html.escape(title)}</h1><p class='sub'>{html.escape(subtitle)}</p>\n"
         + "\n".join(parts)
         + f"\n<script type='application/json' id='slung-page'>{page_json}</script>"
-        + (f"\n<script>{_GLUE}</script>" if plotly_loaded else "")
+        + (f"\n<script type='{DEFERRED_TYPE}'>{_GLUE}</script>\n{plotly_loader()}" if plotly_loaded else "")
         + "\n</body></html>\n"
     )
 

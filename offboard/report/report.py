@@ -43,14 +43,19 @@ def write_report(
     live: np.ndarray | None = None,
     live_col: dict[str, int] | None = None,
     events: dict[str, Any] | None = None,
+    timeseries_rate_hz: float = TIMESERIES_RATE_HZ,
 ) -> list[Path]:
     """Write metrics.json, timeseries.slts and (unless ``figures`` is False) report.html and the PNG figures into
     ``out_dir``; returns the paths. ``command``: the ``slung`` command that ran (titles); ``live`` /
     ``live_col`` / ``events``: a flight's tick rows, their column index and its ``events.json`` content
-    (setpoints, loop timing, events)."""
+    (setpoints, loop timing, events); ``timeseries_rate_hz``: timeseries.slts's rate (a flight's full record
+    is its tick log: ``offboard.flight.flight_outputs.FLIGHT_TIMESERIES_RATE_HZ``)."""
     from offboard.report.run_report_html import write_run_html
 
-    written = [write_json_atomic(out_dir / "metrics.json", metrics), write_timeseries(log, out_dir / RUN_LOG_NAME)]
+    written = [
+        write_json_atomic(out_dir / "metrics.json", metrics),
+        write_timeseries(log, out_dir / RUN_LOG_NAME, timeseries_rate_hz),
+    ]
     if figures:  # --no-figures: metrics and time series only (the page costs 1-2 s of CPU on a 50 s run)
         written.append(write_run_html(out_dir, log, metrics, command, live=live, live_col=live_col, events=events))
         written += draw_figures(log, metrics, out_dir, command=command, live=live, live_col=live_col, events=events)
