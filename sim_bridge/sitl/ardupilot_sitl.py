@@ -100,7 +100,7 @@ class ArduPilotSitl(SitlProcess):
     LOG_NAME = "arducopter.log"
     ERROR = ArduPilotSitlError
 
-    ready_timeout_s: float = 120.0  # ready_after_s: until the pre-arm checks pass and EKF3 gives a local position
+    ready_timeout_s: float = 120.0  # ready: the pre-arm checks passed and EKF3 gives a local position (~40 s)
     payload_kg: float = 1.2
     line_m: float = 1.0
     extra_args: tuple[str, ...] = ()

@@ -15,25 +15,8 @@ from typing import Any
 import numpy as np
 
 from estimators.model.vehicle import Vehicle
+from offboard.harness.compiled import layout as lay
 from offboard.harness.compiled.layout import (
-    EST_ALPHA_X,
-    EST_ALPHA_X_RATE,
-    EST_ALPHA_Y,
-    EST_ALPHA_Y_RATE,
-    EST_FX,
-    EST_FY,
-    EST_PHI,
-    EST_PHI_RATE,
-    EST_PSI,
-    EST_PSI_RATE,
-    EST_THETA,
-    EST_THETA_RATE,
-    EST_Z,
-    EST_Z_RATE,
-    REF_FX,
-    REF_FY,
-    REF_PSI,
-    REF_Z,
     inline_kernel,
     maximum,
     minimum,
@@ -118,7 +101,7 @@ def _lqr_constants(law: Any) -> np.ndarray:
 def swing_offsets(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray) -> tuple[float, ...]:
     """``SwingFeedbackStep.offsets``: the applet's position (m), velocity (m/s) and acceleration (m/s^2) setpoint
     offsets, world (x, y each), its memory (``B_REST_*``, ``B_OFF_*``, ``B_VEL_*``) advanced by ``dt`` (s)."""
-    dx, dy = c[C_L] * est[EST_ALPHA_Y], c[C_L] * est[EST_ALPHA_X]  # payload - vehicle, horizontal (m, world)
+    dx, dy = c[C_L] * est[lay.EST_ALPHA_Y], c[C_L] * est[lay.EST_ALPHA_X]  # payload - vehicle, horizontal (m, world)
     alpha = dt / (dt + c[C_REST_RC])
     rest_x = mem[B_REST_X] + alpha * (dx - mem[B_REST_X])
     rest_y = mem[B_REST_Y] + alpha * (dy - mem[B_REST_Y])
@@ -128,8 +111,8 @@ def swing_offsets(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray) ->
     vel_y = 0.0 if far else c[C_WP_POS_P] * (-oy - rest_y)
     mem[B_REST_X], mem[B_REST_Y], mem[B_OFF_X], mem[B_OFF_Y] = rest_x, rest_y, ox, oy
     mem[B_VEL_X], mem[B_VEL_Y] = vel_x, vel_y
-    oax = 0.0 if far else -c[C_VEL_P] * est[EST_FX + 3]
-    oay = 0.0 if far else -c[C_VEL_P] * est[EST_FY + 3]
+    oax = 0.0 if far else -c[C_VEL_P] * est[lay.EST_FX + 3]
+    oay = 0.0 if far else -c[C_VEL_P] * est[lay.EST_FY + 3]
     return ox, oy, vel_x, vel_y, oax, oay
 
 
@@ -137,11 +120,11 @@ def swing_offsets(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray) ->
 def _velocity_setpoint(c: np.ndarray, est: np.ndarray, ref: np.ndarray, offs: tuple) -> tuple[float, float, float]:
     """Step 1: position P + velocity feed-forward (+ the offsets ``offs``), the speed limited; (m/s, world)."""
     ox, oy, ovx, ovy = offs[0], offs[1], offs[2], offs[3]
-    x = est[EST_FX] - c[C_L] * est[EST_ALPHA_Y]  # the vehicle, F = p + l a
-    y = est[EST_FY] - c[C_L] * est[EST_ALPHA_X]
-    vsx = ref[REF_FX + 1] + ovx + c[C_KP_XY] * (ref[REF_FX] + ox - x)
-    vsy = ref[REF_FY + 1] + ovy + c[C_KP_XY] * (ref[REF_FY] + oy - y)
-    vsz = ref[REF_Z + 1] + c[C_KP_Z] * (ref[REF_Z] - est[EST_Z])
+    x = est[lay.EST_FX] - c[C_L] * est[lay.EST_ALPHA_Y]  # the vehicle, F = p + l a
+    y = est[lay.EST_FY] - c[C_L] * est[lay.EST_ALPHA_X]
+    vsx = ref[lay.REF_FX + 1] + ovx + c[C_KP_XY] * (ref[lay.REF_FX] + ox - x)
+    vsy = ref[lay.REF_FY + 1] + ovy + c[C_KP_XY] * (ref[lay.REF_FY] + oy - y)
+    vsz = ref[lay.REF_Z + 1] + c[C_KP_Z] * (ref[lay.REF_Z] - est[lay.EST_Z])
     sp = math.hypot(vsx, vsy)
     if sp > c[C_VEL_MAX_XY]:
         scale = c[C_VEL_MAX_XY] / sp
@@ -158,19 +141,19 @@ def _acceleration_setpoint(
     first-order acceleration), and the new velocity integrators (m; stored by the caller)."""
     vsx, vsy, vsz = _velocity_setpoint(c, est, ref, offs)
     l = c[C_L]
-    vx, vy = est[EST_FX + 1] - l * est[EST_ALPHA_Y_RATE], est[EST_FY + 1] - l * est[EST_ALPHA_X_RATE]
-    evx, evy, evz = vsx - vx, vsy - vy, vsz - est[EST_Z_RATE]
+    vx, vy = est[lay.EST_FX + 1] - l * est[lay.EST_ALPHA_Y_RATE], est[lay.EST_FY + 1] - l * est[lay.EST_ALPHA_X_RATE]
+    evx, evy, evz = vsx - vx, vsy - vy, vsz - est[lay.EST_Z_RATE]
     ivx, ivy, ivz = mem[B_IVX] + evx * dt, mem[B_IVY] + evy * dt, mem[B_IVZ] + evz * dt
-    phi, theta, psi = est[EST_PHI], est[EST_THETA], est[EST_PSI]
+    phi, theta, psi = est[lay.EST_PHI], est[lay.EST_THETA], est[lay.EST_PSI]
     cps, sps = math.cos(psi), math.sin(psi)
     nx = theta * cps + phi * sps
     ny = theta * sps - phi * cps
-    acc_x = c[C_ACC_GAIN] * (c[C_MT] * nx + c[C_MLOAD] * est[EST_ALPHA_Y])
-    acc_y = c[C_ACC_GAIN] * (c[C_MT] * ny + c[C_MLOAD] * est[EST_ALPHA_X])
-    rfx2, rfy2 = ref[REF_FX + 2], ref[REF_FY + 2]
+    acc_x = c[C_ACC_GAIN] * (c[C_MT] * nx + c[C_MLOAD] * est[lay.EST_ALPHA_Y])
+    acc_y = c[C_ACC_GAIN] * (c[C_MT] * ny + c[C_MLOAD] * est[lay.EST_ALPHA_X])
+    rfx2, rfy2 = ref[lay.REF_FX + 2], ref[lay.REF_FY + 2]
     ax = rfx2 + offs[4] + c[C_KV_XY] * evx + c[C_KI_XY] * ivx - c[C_KD_XY] * (acc_x - rfx2)
     ay = rfy2 + offs[5] + c[C_KV_XY] * evy + c[C_KI_XY] * ivy - c[C_KD_XY] * (acc_y - rfy2)
-    az = ref[REF_Z + 2] + c[C_KV_Z] * evz + c[C_KI_Z] * ivz
+    az = ref[lay.REF_Z + 2] + c[C_KV_Z] * evz + c[C_KI_Z] * ivz
     return ax, ay, az, ivx, ivy, ivz
 
 
@@ -202,16 +185,16 @@ def _rate_loop(
     clipped with the thrust ``u_out[0]`` (N) into ``u_out``; the rate integrators kept unless their torque is
     clipped. Returns whether anything was clipped."""
     phi_d, theta_d, thrust = att_sp[0], att_sp[1], u_out[0]
-    phi, theta, psi = est[EST_PHI], est[EST_THETA], est[EST_PSI]
+    phi, theta, psi = est[lay.EST_PHI], est[lay.EST_THETA], est[lay.EST_PSI]
     p_sp = c[C_KP_ATT] * (phi_d - phi)
     q_sp = c[C_KP_ATT] * (theta_d - theta)
-    r_sp = ref[REF_PSI + 1] + c[C_KP_YAW] * wrap_angle(ref[REF_PSI] - psi)
+    r_sp = ref[lay.REF_PSI + 1] + c[C_KP_YAW] * wrap_angle(ref[lay.REF_PSI] - psi)
     r_sp = maximum(-c[C_YAW_RATE_MAX], minimum(c[C_YAW_RATE_MAX], r_sp))
-    e_p, e_q = p_sp - est[EST_PHI_RATE], q_sp - est[EST_THETA_RATE]
+    e_p, e_q = p_sp - est[lay.EST_PHI_RATE], q_sp - est[lay.EST_THETA_RATE]
     i_p, i_q = mem[B_IP] + e_p * dt, mem[B_IQ] + e_q * dt
     tau_phi = c[C_IX] * (c[C_KR_RP] * e_p + c[C_KI_RP] * i_p)
     tau_theta = c[C_IY] * (c[C_KR_RP] * e_q + c[C_KI_RP] * i_q)
-    tau_psi = c[C_IZ] * (c[C_KR_YAW] * (r_sp - est[EST_PSI_RATE]) + ref[REF_PSI + 2])
+    tau_psi = c[C_IZ] * (c[C_KR_YAW] * (r_sp - est[lay.EST_PSI_RATE]) + ref[lay.REF_PSI + 2])
     tp, tt, ts = c[C_TP], c[C_TT], c[C_TS]
     s_p, s_q, s_r = abs(tau_phi) > tp, abs(tau_theta) > tt, abs(tau_psi) > ts
     s_t = thrust > c[C_THRUST_MAX]
@@ -240,7 +223,7 @@ def cascade_step(
     cascade), the command (thrust N, torques N m) into ``u_out``, ``mem`` (``B_*``) updated. Returns
     ``saturated`` (a torque, the thrust or the tilt limit)."""
     ax, ay, az, ivx, ivy, ivz = _acceleration_setpoint(c, mem, dt, est, ref, offs)
-    thrust, phi_d, theta_d, tilted = _attitude_setpoint(c, ax, ay, az, ref[REF_PSI])
+    thrust, phi_d, theta_d, tilted = _attitude_setpoint(c, ax, ay, az, ref[lay.REF_PSI])
     u_out[0] = thrust
     sat = _rate_loop(c, mem, dt, est, ref, (phi_d, theta_d), u_out)
     if not tilted:  # anti-windup: the horizontal integrators held while the tilt limit clips
@@ -263,31 +246,35 @@ def _lqr_errors(c: np.ndarray, est: np.ndarray, ref: np.ndarray, e: np.ndarray, 
     the feed-forward thrust (N) and torques (N m) into ``ff``: the reference state from the flat reference
     (``a* = -F*''/g``, ``p* = F* - l a*``, ``n* = F*^(4)/c - a*``)."""
     l, g, cc, w2 = c[Q_L], c[Q_G], c[Q_C], c[Q_W2]
-    ay_r, ay_rd = -ref[REF_FX + 2] / g, -ref[REF_FX + 3] / g
-    ax_r, ax_rd = -ref[REF_FY + 2] / g, -ref[REF_FY + 3] / g
-    x_r, vx_r = ref[REF_FX] - l * ay_r, ref[REF_FX + 1] - l * ay_rd
-    y_r, vy_r = ref[REF_FY] - l * ax_r, ref[REF_FY + 1] - l * ax_rd
-    nx_r, nxd_r = ref[REF_FX + 4] / cc - ay_r, ref[REF_FX + 5] / cc - ay_rd
-    ny_r, nyd_r = ref[REF_FY + 4] / cc - ax_r, ref[REF_FY + 5] / cc - ax_rd
-    nxdd_r = (ref[REF_FX + 6] + w2 * ref[REF_FX + 4]) / cc
-    nydd_r = (ref[REF_FY + 6] + w2 * ref[REF_FY + 4]) / cc
-    x, y = est[EST_FX] - l * est[EST_ALPHA_Y], est[EST_FY] - l * est[EST_ALPHA_X]
-    vx, vy = est[EST_FX + 1] - l * est[EST_ALPHA_Y_RATE], est[EST_FY + 1] - l * est[EST_ALPHA_X_RATE]
-    psi = est[EST_PSI]
+    ay_r, ay_rd = -ref[lay.REF_FX + 2] / g, -ref[lay.REF_FX + 3] / g
+    ax_r, ax_rd = -ref[lay.REF_FY + 2] / g, -ref[lay.REF_FY + 3] / g
+    x_r, vx_r = ref[lay.REF_FX] - l * ay_r, ref[lay.REF_FX + 1] - l * ay_rd
+    y_r, vy_r = ref[lay.REF_FY] - l * ax_r, ref[lay.REF_FY + 1] - l * ax_rd
+    nx_r, nxd_r = ref[lay.REF_FX + 4] / cc - ay_r, ref[lay.REF_FX + 5] / cc - ay_rd
+    ny_r, nyd_r = ref[lay.REF_FY + 4] / cc - ax_r, ref[lay.REF_FY + 5] / cc - ax_rd
+    nxdd_r = (ref[lay.REF_FX + 6] + w2 * ref[lay.REF_FX + 4]) / cc
+    nydd_r = (ref[lay.REF_FY + 6] + w2 * ref[lay.REF_FY + 4]) / cc
+    x, y = est[lay.EST_FX] - l * est[lay.EST_ALPHA_Y], est[lay.EST_FY] - l * est[lay.EST_ALPHA_X]
+    vx, vy = est[lay.EST_FX + 1] - l * est[lay.EST_ALPHA_Y_RATE], est[lay.EST_FY + 1] - l * est[lay.EST_ALPHA_X_RATE]
+    psi = est[lay.EST_PSI]
     cp, sp = math.cos(psi), math.sin(psi)
     th_r, mphi_r = _rot(cp, sp, nx_r, ny_r)  # the reference tilt in the heading frame is [theta*, -phi*]
     thd_r, mphid_r = _rot(cp, sp, nxd_r, nyd_r)
     thdd_r, mphidd_r = _rot(cp, sp, nxdd_r, nydd_r)
     e[0], e[1] = _rot(cp, sp, x - x_r, y - y_r)
-    e[2] = est[EST_Z] - ref[REF_Z]
+    e[2] = est[lay.EST_Z] - ref[lay.REF_Z]
     e[3], e[4] = _rot(cp, sp, vx - vx_r, vy - vy_r)
-    e[5] = est[EST_Z_RATE] - ref[REF_Z + 1]
-    e[6], e[7], e[8] = est[EST_PHI] + mphi_r, est[EST_THETA] - th_r, wrap_angle(psi - ref[REF_PSI])
-    e[9], e[10], e[11] = est[EST_PHI_RATE] + mphid_r, est[EST_THETA_RATE] - thd_r, est[EST_PSI_RATE] - ref[REF_PSI + 1]
-    e[12], e[13] = _rot(cp, sp, est[EST_ALPHA_Y] - ay_r, est[EST_ALPHA_X] - ax_r)
-    e[14], e[15] = _rot(cp, sp, est[EST_ALPHA_Y_RATE] - ay_rd, est[EST_ALPHA_X_RATE] - ax_rd)
-    ff[0], ff[1] = c[Q_MT] * (g + ref[REF_Z + 2]), -c[Q_IX] * mphidd_r
-    ff[2], ff[3] = c[Q_IY] * thdd_r, c[Q_IZ] * ref[REF_PSI + 2]
+    e[5] = est[lay.EST_Z_RATE] - ref[lay.REF_Z + 1]
+    e[6], e[7], e[8] = est[lay.EST_PHI] + mphi_r, est[lay.EST_THETA] - th_r, wrap_angle(psi - ref[lay.REF_PSI])
+    e[9], e[10], e[11] = (
+        est[lay.EST_PHI_RATE] + mphid_r,
+        est[lay.EST_THETA_RATE] - thd_r,
+        est[lay.EST_PSI_RATE] - ref[lay.REF_PSI + 1],
+    )
+    e[12], e[13] = _rot(cp, sp, est[lay.EST_ALPHA_Y] - ay_r, est[lay.EST_ALPHA_X] - ax_r)
+    e[14], e[15] = _rot(cp, sp, est[lay.EST_ALPHA_Y_RATE] - ay_rd, est[lay.EST_ALPHA_X_RATE] - ax_rd)
+    ff[0], ff[1] = c[Q_MT] * (g + ref[lay.REF_Z + 2]), -c[Q_IX] * mphidd_r
+    ff[2], ff[3] = c[Q_IY] * thdd_r, c[Q_IZ] * ref[lay.REF_PSI + 2]
 
 
 @inline_kernel

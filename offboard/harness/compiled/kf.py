@@ -30,6 +30,8 @@ import math
 
 import numpy as np
 
+from estimators.model import flatness, rotations
+from offboard.harness.compiled import layout as lay
 from offboard.harness.compiled.kf_layout import (
     B_P,
     B_T,
@@ -117,9 +119,8 @@ from offboard.harness.compiled.kf_layout import (
 )
 from offboard.harness.compiled.kf_predict import (
     _fresh,
-    _kin_mean,
+    _mean3,
     _rate_mean,
-    _swing_mean,
     kf_advance,
 )
 from offboard.harness.compiled.kf_update import (
@@ -132,27 +133,19 @@ from offboard.harness.compiled.kf_update import (
 )
 from offboard.harness.compiled.layout import (
     ATT,
-    EST_ALPHA_X,
-    EST_ALPHA_X_RATE,
-    EST_ALPHA_Y,
-    EST_ALPHA_Y_RATE,
-    EST_FX,
-    EST_FY,
-    EST_PHI,
-    EST_PHI_RATE,
-    EST_PSI,
-    EST_PSI_RATE,
-    EST_THETA,
-    EST_THETA_RATE,
-    EST_Z,
-    EST_Z_RATE,
     IMU,
     POS,
+    inline_kernel,
     maximum,
     minimum,
     pure_kernel,
     wrap_angle,
 )
+
+#: the scalar path's own functions, compiled (``layout.SHARED_SOURCES``): body rates to Euler rates, and the world
+#: tilt and its rate from the attitude
+_euler_rates = inline_kernel(rotations.euler_rates)
+_world_tilt = inline_kernel(flatness.world_tilt)
 
 #: this module's kernels: no kernel here creates, keeps or returns an array (``layout.pure_kernel``)
 _kernel = pure_kernel
@@ -189,15 +182,17 @@ def kf_initialize(c: np.ndarray, f: np.ndarray, n: np.ndarray, t: float, est_gue
     ``psi`` and ``psi_rate`` are read) with the tuning's prior covariance; every input, statistic and counter reset."""
     f[:] = 0.0
     n[:] = 0
-    px0, px1, px2, px3, px4, px5 = _planar(c, est_guess, EST_FX)
-    py0, py1, py2, py3, py4, py5 = _planar(c, est_guess, EST_FY)
+    px0, px1, px2, px3, px4, px5 = _planar(c, est_guess, lay.EST_FX)
+    py0, py1, py2, py3, py4, py5 = _planar(c, est_guess, lay.EST_FY)
     vp, vv, vb = c[C_VAR_POS], c[C_VAR_VEL], c[C_VAR_BIAS]
     _init_block(f, KIN_X, t, px0, px1, 0.0, vp, vv, vb)
     _init_block(f, KIN_Y, t, py0, py1, 0.0, vp, vv, vb)
-    _init_block(f, KIN_Z, t, est_guess[EST_Z], est_guess[EST_Z_RATE], 0.0, vp, vv, vb)
+    _init_block(f, KIN_Z, t, est_guess[lay.EST_Z], est_guess[lay.EST_Z_RATE], 0.0, vp, vv, vb)
     _init_block(f, TILT_X, t, px4, px5, 0.0, c[C_VAR_TILT], c[C_VAR_TILT_RATE], 0.0)
     _init_block(f, TILT_Y, t, py4, py5, 0.0, c[C_VAR_TILT], c[C_VAR_TILT_RATE], 0.0)
-    _init_block(f, HEAD, t, est_guess[EST_PSI], est_guess[EST_PSI_RATE], 0.0, c[C_VAR_PSI], c[C_VAR_PSI_RATE], 0.0)
+    _init_block(
+        f, HEAD, t, est_guess[lay.EST_PSI], est_guess[lay.EST_PSI_RATE], 0.0, c[C_VAR_PSI], c[C_VAR_PSI_RATE], 0.0
+    )
     vs, vsr, ve = c[C_VAR_SWING], c[C_VAR_SWING_RATE], c[C_VAR_E]
     _init_block(f, SWING_X, t, px2, px3, 0.0, vs, vsr, ve)
     _init_block(f, SWING_Y, t, py2, py3, 0.0, vs, vsr, ve)
@@ -253,12 +248,8 @@ def kf_fuse_gyro(c: np.ndarray, f: np.ndarray, n: np.ndarray, t: float, gyro: np
     theta, phi = nx * cp + ny * sp, nx * sp - ny * cp
     if not abs(math.cos(theta)) >= 1e-3:
         return
-    mp, mq, mr = gyro[0], gyro[1], gyro[2]
-    sf, cf, ct = math.sin(phi), math.cos(phi), math.cos(theta)  # estimators.model.rotations.euler_rates
-    tt = math.tan(theta)
-    phi_rate, theta_rate, psi_rate = mp + sf * tt * mq + cf * tt * mr, cf * mq - sf * mr, (sf * mq + cf * mr) / ct
-    nxd = theta_rate * cp + phi_rate * sp - psi_rate * (theta * sp - phi * cp)  # world_tilt's rates
-    nyd = theta_rate * sp - phi_rate * cp + psi_rate * (theta * cp + phi * sp)
+    phi_rate, theta_rate, psi_rate = _euler_rates(phi, theta, gyro[0], gyro[1], gyro[2])
+    _, _, nxd, nyd = _world_tilt(phi, theta, psi, phi_rate, theta_rate, psi_rate)
     _one(c, f, n, S_GYRO, TILT_X, 1, nxd, CH_GYRO_RATE)
     _one(c, f, n, S_GYRO, TILT_Y, 1, nyd, CH_GYRO_RATE)
     _one(c, f, n, S_GYRO, HEAD, 1, psi_rate, CH_GYRO_YAW_RATE)
@@ -279,19 +270,11 @@ def _fuse_att(c, f, n, t, z):
     """An attitude record (phi, theta, psi rad, model-frame ZYX; p, q, r rad/s, body FLU): the world tilt and its
     rate to the tilt blocks, the heading and its rate to the heading block; skipped (no block advanced) where the
     Euler rates are singular."""
-    phi, theta, psi, mp, mq, mr = z[0], z[1], z[2], z[3], z[4], z[5]
-    sf, cf, ct = math.sin(phi), math.cos(phi), math.cos(theta)
-    if not abs(ct) >= 1e-3:  # the scalar filter skips such a record ("not_used")
+    phi, theta, psi = z[0], z[1], z[2]
+    if not abs(math.cos(theta)) >= 1e-3:  # the scalar filter skips such a record ("not_used")
         return
-    tt = math.tan(theta)
-    phi_rate = mp + sf * tt * mq + cf * tt * mr
-    theta_rate = cf * mq - sf * mr
-    psi_rate = (sf * mq + cf * mr) / ct
-    cp, sp = math.cos(psi), math.sin(psi)  # estimators.model.flatness.world_tilt
-    nx = theta * cp + phi * sp
-    ny = theta * sp - phi * cp
-    nxd = theta_rate * cp + phi_rate * sp - psi_rate * ny
-    nyd = theta_rate * sp - phi_rate * cp + psi_rate * nx
+    phi_rate, theta_rate, psi_rate = _euler_rates(phi, theta, z[3], z[4], z[5])
+    nx, ny, nxd, nyd = _world_tilt(phi, theta, psi, phi_rate, theta_rate, psi_rate)
     for bi in (TILT_X, TILT_Y, HEAD):
         kf_advance(c, f, n, bi, t)
     _pair(c, f, n, S_TILT, TILT_X, nx, nxd, CH_TILT, CH_TILT_RATE)
@@ -414,29 +397,29 @@ def _external(c, f, bi, e):
 def kf_estimate(c: np.ndarray, f: np.ndarray, n: np.ndarray, t: float, est_out: np.ndarray) -> None:
     """``estimate_arrays(t)``: every block's mean predicted to ``t`` (s) with the inputs in force (the filter left as
     it is), as the estimate vector ``est_out`` (``layout.EST_*``: flat chains, height, attitude, swing)."""
-    px, vx, _ = _kin_mean(c, f, KIN_X, t)
-    py, vy, _ = _kin_mean(c, f, KIN_Y, t)
-    z, z_rate, _ = _kin_mean(c, f, KIN_Z, t)
+    px, vx, _ = _mean3(c, f, KIN_X, t)
+    py, vy, _ = _mean3(c, f, KIN_Y, t)
+    z, z_rate, _ = _mean3(c, f, KIN_Z, t)
     nx, nxd = _rate_mean(c, f, TILT_X, t)
     ny, nyd = _rate_mean(c, f, TILT_Y, t)
     psi, psi_rate = _rate_mean(c, f, HEAD, t)
-    ay_, ayd, e_x = _swing_mean(c, f, SWING_X, t)
-    ax_, axd, e_y = _swing_mean(c, f, SWING_Y, t)
+    ay_, ayd, e_x = _mean3(c, f, SWING_X, t)
+    ax_, axd, e_y = _mean3(c, f, SWING_Y, t)
     cp, sp = math.cos(psi), math.sin(psi)
-    _chain(c, est_out, EST_FX, px, vx, ay_, ayd, nx, nxd)
-    _chain(c, est_out, EST_FY, py, vy, ax_, axd, ny, nyd)
+    _chain(c, est_out, lay.EST_FX, px, vx, ay_, ayd, nx, nxd)
+    _chain(c, est_out, lay.EST_FY, py, vy, ax_, axd, ny, nyd)
     if c[C_EXTERNAL_FF] != 0.0:  # MeasuredPrediction._control_state's external acceleration in F^(4)
-        est_out[EST_FX + 4] = est_out[EST_FX + 4] + _external(c, f, SWING_X, e_x)
-        est_out[EST_FY + 4] = est_out[EST_FY + 4] + _external(c, f, SWING_Y, e_y)
-    est_out[EST_Z], est_out[EST_Z_RATE] = z, z_rate
-    est_out[EST_THETA] = nx * cp + ny * sp
-    est_out[EST_PHI] = nx * sp - ny * cp
-    est_out[EST_PSI] = wrap_angle(psi)
-    est_out[EST_THETA_RATE] = nxd * cp + nyd * sp + psi_rate * (-nx * sp + ny * cp)
-    est_out[EST_PHI_RATE] = nxd * sp - nyd * cp + psi_rate * (nx * cp + ny * sp)
-    est_out[EST_PSI_RATE] = psi_rate
-    est_out[EST_ALPHA_X], est_out[EST_ALPHA_Y] = ax_, ay_
-    est_out[EST_ALPHA_X_RATE], est_out[EST_ALPHA_Y_RATE] = axd, ayd
+        est_out[lay.EST_FX + 4] = est_out[lay.EST_FX + 4] + _external(c, f, SWING_X, e_x)
+        est_out[lay.EST_FY + 4] = est_out[lay.EST_FY + 4] + _external(c, f, SWING_Y, e_y)
+    est_out[lay.EST_Z], est_out[lay.EST_Z_RATE] = z, z_rate
+    est_out[lay.EST_THETA] = nx * cp + ny * sp
+    est_out[lay.EST_PHI] = nx * sp - ny * cp
+    est_out[lay.EST_PSI] = wrap_angle(psi)
+    est_out[lay.EST_THETA_RATE] = nxd * cp + nyd * sp + psi_rate * (-nx * sp + ny * cp)
+    est_out[lay.EST_PHI_RATE] = nxd * sp - nyd * cp + psi_rate * (nx * cp + ny * sp)
+    est_out[lay.EST_PSI_RATE] = psi_rate
+    est_out[lay.EST_ALPHA_X], est_out[lay.EST_ALPHA_Y] = ax_, ay_
+    est_out[lay.EST_ALPHA_X_RATE], est_out[lay.EST_ALPHA_Y_RATE] = axd, ayd
 
 
 __all__ = [

@@ -1,16 +1,15 @@
 """The measured-input filter's prediction in a compiled run (:mod:`.kf`): each block's closed-form model over a step
 (``estimators.filters.small_kf``'s, the same expressions), its prediction in place (:func:`kf_advance`, the
 schedule's block advance event) and the mean-only prediction of the estimate (:func:`_rate_mean`,
-:func:`_kin_mean`, :func:`_swing_mean`). The arrays ``c``, ``f``, ``n`` are :mod:`.kf_layout`'s; SI units, world
+:func:`_mean3`). The arrays ``c``, ``f``, ``n`` are :mod:`.kf_layout`'s; SI units, world
 NWU, times in s.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from estimators.filters import small_kf
 from offboard.harness.compiled.kf_layout import (
     B_P,
     B_T,
@@ -43,7 +42,7 @@ from offboard.harness.compiled.kf_layout import (
     SWING_X,
     TILT_X,
 )
-from offboard.harness.compiled.layout import maximum, pure_kernel
+from offboard.harness.compiled.layout import inline_kernel, maximum, pure_kernel
 
 #: this module's kernels: no kernel here creates, keeps or returns an array (``layout.pure_kernel``)
 _kernel = pure_kernel
@@ -69,36 +68,16 @@ def _kinematic_model(h, q_v, q_b, q_p):
     return phi, (0.5 * h2, h, 0.0), q
 
 
-@_kernel
-def _pendulum_transition(h, w2):
-    """The swing's ``a'' = -w2 a + f`` over ``h`` s (``w2`` 1/s^2): ``(f00, f01, f10, g0, g1)`` of Phi
-    ``[[f00, f01, 0], [f10, f00, 0], [0, 0, 1]]`` and Gamma ``[g0, g1, 0]``; series where ``w h < 1e-3``."""
-    w = math.sqrt(w2)
-    wh = w * h
-    h2 = h * h
-    if wh < 1e-3:
-        return 1.0 - 0.5 * w2 * h2, h, -w2 * h, 0.5 * h2, h
-    c, s = math.cos(wh), math.sin(wh)
-    return c, s / w, -w * s, (1.0 - c) / w2, s / w
-
-
-@_kernel
-def _pendulum_noise(h, w2, q_a):
-    """``(Q_aa, Q_aa', Q_a'a')`` of the swing's white ``q_a`` ((rad/s^2)^2/Hz) over ``h`` s."""
-    w = math.sqrt(w2)
-    wh = w * h
-    h2 = h * h
-    if wh < 1e-3:
-        return q_a * h2 * h / 3.0, q_a * h2 / 2.0, q_a * h
-    s = math.sin(wh)
-    s2 = math.sin(2.0 * wh) / (4.0 * w)
-    return q_a * (0.5 * h - s2) / w2, q_a * s * s / (2.0 * w2), q_a * (0.5 * h + s2)
+#: the swing's transition and noise over a step: ``small_kf``'s own functions, compiled (``layout.SHARED_SOURCES``)
+_pendulum_terms = inline_kernel(small_kf.pendulum_terms)
+_pendulum_noise = inline_kernel(small_kf.pendulum_noise)
+_sandwich3 = inline_kernel(small_kf.sandwich3)
 
 
 @_kernel
 def _predict3(f, o, phi, gam, u, q):
-    """A block's prediction of three states in place (``small_kf._predict3`` / ``propagate_cov3``): the block at
-    ``f[o:]`` moved by ``Phi``, ``Gamma u`` (when ``u != 0``) and ``Q`` (upper triangle)."""
+    """A block's prediction of three states in place (``small_kf._predict3``, its covariance by ``sandwich3``): the
+    block at ``f[o:]`` moved by ``Phi``, ``Gamma u`` (when ``u != 0``) and ``Q`` (upper triangle)."""
     f00, f01, f02, f10, f11, f12, f20, f21, f22 = phi
     x, p = o + B_X, o + B_P
     x0, x1, x2 = f[x], f[x + 1], f[x + 2]
@@ -108,29 +87,9 @@ def _predict3(f, o, phi, gam, u, q):
     if u != 0.0:
         y0, y1, y2 = y0 + gam[0] * u, y1 + gam[1] * u, y2 + gam[2] * u
     f[x], f[x + 1], f[x + 2] = y0, y1, y2
-    p00, p01, p02, p11, p12, p22 = f[p + P00], f[p + P01], f[p + P02], f[p + P11], f[p + P12], f[p + P22]
-    a00, a01, a02 = (
-        f00 * p00 + f01 * p01 + f02 * p02,
-        f00 * p01 + f01 * p11 + f02 * p12,
-        f00 * p02 + f01 * p12 + f02 * p22,
-    )
-    a10, a11, a12 = (
-        f10 * p00 + f11 * p01 + f12 * p02,
-        f10 * p01 + f11 * p11 + f12 * p12,
-        f10 * p02 + f11 * p12 + f12 * p22,
-    )
-    a20, a21, a22 = (
-        f20 * p00 + f21 * p01 + f22 * p02,
-        f20 * p01 + f21 * p11 + f22 * p12,
-        f20 * p02 + f21 * p12 + f22 * p22,
-    )
-    q00, q01, q02, q11, q12, q22 = q
-    f[p + P00] = a00 * f00 + a01 * f01 + a02 * f02 + q00
-    f[p + P01] = a00 * f10 + a01 * f11 + a02 * f12 + q01
-    f[p + P02] = a00 * f20 + a01 * f21 + a02 * f22 + q02
-    f[p + P11] = a10 * f10 + a11 * f11 + a12 * f12 + q11
-    f[p + P12] = a10 * f20 + a11 * f21 + a12 * f22 + q12
-    f[p + P22] = a20 * f20 + a21 * f21 + a22 * f22 + q22
+    upper = (f[p + P00], f[p + P01], f[p + P02], f[p + P11], f[p + P12], f[p + P22])
+    n00, n01, n02, n11, n12, n22 = _sandwich3(phi, upper, q)
+    f[p + P00], f[p + P01], f[p + P02], f[p + P11], f[p + P12], f[p + P22] = n00, n01, n02, n11, n12, n22
 
 
 @_kernel
@@ -191,7 +150,7 @@ def kf_advance(c: np.ndarray, f: np.ndarray, n: np.ndarray, bi: int, t: float) -
         _predict3(f, o, phi, gam, f[F_U + bi] if fresh else 0.0, q)
     elif bi > HEAD:
         w2, u = _swing_input(c, f, bi, tb)
-        f00, f01, f10, g0, g1 = _pendulum_transition(h, w2)
+        f00, f01, f10, _, g0, g1 = _pendulum_terms(h, w2)
         qaa, qad, qdd = _pendulum_noise(h, w2, c[C_Q_A])
         phi = (f00, f01, 0.0, f10, f00, 0.0, 0.0, 0.0, 1.0)
         _predict3(f, o, phi, (g0, g1, 0.0), u, (qaa, qad, 0.0, qdd, 0.0, c[C_Q_E] * h))
@@ -218,30 +177,21 @@ def _rate_mean(c, f, bi, t):
 
 
 @_kernel
-def _kin_mean(c, f, bi, t):
-    """A kinematic block's mean at ``t`` (s), the acceleration input in force held."""
+def _mean3(c, f, bi, t):
+    """A three-state block's mean at ``t`` (s): a kinematic block's with the acceleration input in force held; a swing
+    block's by its model's transition and input (``Phi x + Gamma u``, the scalar filter's three-state sums with the
+    model's zeros and ones)."""
     o = F_BLOCKS + BLOCK_SIZE * bi
     tb = f[o + B_T]
     x0, x1, x2 = f[o + B_X], f[o + B_X + 1], f[o + B_X + 2]
     h = t - tb
     if not h > 0.0:
         return x0, x1, x2
-    acc = (f[F_U + bi] if _fresh(c, f, tb) else 0.0) - x2
-    return x0 + h * x1 + 0.5 * h * h * acc, x1 + h * acc, x2
-
-
-@_kernel
-def _swing_mean(c, f, bi, t):
-    """A swing block's mean at ``t`` (s): its model's transition and input (``Phi x + Gamma u``, the scalar filter's
-    three-state sums with the model's zeros and ones)."""
-    o = F_BLOCKS + BLOCK_SIZE * bi
-    tb = f[o + B_T]
-    x0, x1, x2 = f[o + B_X], f[o + B_X + 1], f[o + B_X + 2]
-    h = t - tb
-    if not h > 0.0:
-        return x0, x1, x2
+    if bi < TILT_X:
+        acc = (f[F_U + bi] if _fresh(c, f, tb) else 0.0) - x2
+        return x0 + h * x1 + 0.5 * h * h * acc, x1 + h * acc, x2
     w2, u = _swing_input(c, f, bi, tb)
-    f00, f01, f10, g0, g1 = _pendulum_transition(h, w2)
+    f00, f01, f10, _, g0, g1 = _pendulum_terms(h, w2)
     y0 = f00 * x0 + f01 * x1 + 0.0 * x2
     y1 = f10 * x0 + f00 * x1 + 0.0 * x2
     y2 = 0.0 * x0 + 0.0 * x1 + 1.0 * x2

@@ -13,27 +13,11 @@ import math
 
 import numpy as np
 
+from estimators.model import rotations
 from estimators.model.flatness import flat_constants
 from offboard.control import smc
+from offboard.harness.compiled import layout as lay
 from offboard.harness.compiled.layout import (
-    EST_ALPHA_X,
-    EST_ALPHA_X_RATE,
-    EST_ALPHA_Y,
-    EST_ALPHA_Y_RATE,
-    EST_FX,
-    EST_FY,
-    EST_PHI,
-    EST_PHI_RATE,
-    EST_PSI,
-    EST_PSI_RATE,
-    EST_THETA,
-    EST_THETA_RATE,
-    EST_Z,
-    EST_Z_RATE,
-    REF_FX,
-    REF_FY,
-    REF_PSI,
-    REF_Z,
     inline_kernel,
     maximum,
     minimum,
@@ -102,6 +86,8 @@ def _clip(x: float, lo: float, hi: float) -> float:
 
 #: ``smc``'s switching function, compiled from the scalar law itself
 _switching = inline_kernel(smc.switching)
+#: the thrust direction from the attitude's sines and cosines, compiled from the scalar path's own function
+_thrust_direction = inline_kernel(rotations.thrust_direction_trig)
 
 
 # ---- smc: offboard.control.smc.step ---------------------------------------------------------------------------------
@@ -111,19 +97,16 @@ def _smc_height(
 ) -> tuple[float, float]:
     """(the height law's thrust, N, unclipped; the new height-error integral, m s): the full nonlinear ``g_z`` of the
     thrust direction ``n`` (world) and the cable (from the planar swing angles and rates of ``est``)."""
-    phi, theta, psi = est[EST_PHI], est[EST_THETA], est[EST_PSI]
+    phi, theta, psi = est[lay.EST_PHI], est[lay.EST_THETA], est[lay.EST_PSI]
     sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
-    sp, cp = math.sin(psi), math.cos(psi)
-    n1 = sf * sp + cf * cp * st
-    n2 = cf * sp * st - cp * sf
-    n3 = cf * ct
+    n1, n2, n3 = _thrust_direction(sf, cf, st, ct, math.sin(psi), math.cos(psi))
     # tan and cos of each swing angle from one sine / cosine pair (tan = sin / cos: an ulp from libm's tan), and
     # products by 1 / |.| where the scalar law divides by it: the same expressions to an ulp or so
-    sy, cy = math.sin(est[EST_ALPHA_Y]), math.cos(est[EST_ALPHA_Y])
-    sx, cx = math.sin(est[EST_ALPHA_X]), math.cos(est[EST_ALPHA_X])
+    sy, cy = math.sin(est[lay.EST_ALPHA_Y]), math.cos(est[lay.EST_ALPHA_Y])
+    sx, cx = math.sin(est[lay.EST_ALPHA_X]), math.cos(est[lay.EST_ALPHA_X])
     ty, tx = sy / cy, sx / cx
-    dty = est[EST_ALPHA_Y_RATE] / (cy * cy)  # numpy's ** 2 is a product
-    dtx = est[EST_ALPHA_X_RATE] / (cx * cx)
+    dty = est[lay.EST_ALPHA_Y_RATE] / (cy * cy)  # numpy's ** 2 is a product
+    dtx = est[lay.EST_ALPHA_X_RATE] / (cx * cx)
     nn = math.sqrt(1.0 + ty * ty + tx * tx)
     inv_n = 1.0 / nn
     inv_n2 = inv_n * inv_n
@@ -134,12 +117,14 @@ def _smc_height(
     m, Mt = c[S_MLOAD], c[S_MT]
     g_z = (Mt * maximum(n3, c[S_COS_MAX]) - m * nr * r3) * c[S_INV_M_MT]
     f_z = m * c[S_L] * (d1 * d1 + d2 * d2 + d3 * d3) * r3 / Mt - c[S_G]
-    e_z = est[EST_Z] - ref[REF_Z]
-    e_zd = est[EST_Z_RATE] - ref[REF_Z + 1]
+    e_z = est[lay.EST_Z] - ref[lay.REF_Z]
+    e_zd = est[lay.EST_Z_RATE] - ref[lay.REF_Z + 1]
     int_z = int_prev + e_z * dt
     s_z = e_zd + c[S_LAMBDA1] * e_z + c[S_LAMBDA0] * int_z
     sw = _switching(s_z, c[S_EPS_Z], smooth)
-    thrust = (ref[REF_Z + 2] - f_z - c[S_LAMBDA1] * e_zd - c[S_LAMBDA0] * e_z - c[S_RHO_Z] * sw) / maximum(g_z, 1e-3)
+    thrust = (ref[lay.REF_Z + 2] - f_z - c[S_LAMBDA1] * e_zd - c[S_LAMBDA0] * e_z - c[S_RHO_Z] * sw) / maximum(
+        g_z, 1e-3
+    )
     return thrust, int_z
 
 
@@ -148,12 +133,12 @@ def _smc_yaw(
     c: np.ndarray, dt: float, int_prev: float, est: np.ndarray, ref: np.ndarray, smooth: bool
 ) -> tuple[float, float]:
     """(the yaw law's torque, N m, unclipped; the new heading-error integral, rad s)."""
-    e_psi = wrap_angle(est[EST_PSI] - ref[REF_PSI])
-    e_psid = est[EST_PSI_RATE] - ref[REF_PSI + 1]
+    e_psi = wrap_angle(est[lay.EST_PSI] - ref[lay.REF_PSI])
+    e_psid = est[lay.EST_PSI_RATE] - ref[lay.REF_PSI + 1]
     int_psi = int_prev + e_psi * dt
     s_psi = e_psid + c[S_GAMMA1] * e_psi + c[S_GAMMA0] * int_psi
     sw = _switching(s_psi, c[S_EPS_PSI], smooth)
-    tau_psi = c[S_IS] * (ref[REF_PSI + 2] - c[S_GAMMA1] * e_psid - c[S_GAMMA0] * e_psi - c[S_RHO_PSI] * sw)
+    tau_psi = c[S_IS] * (ref[lay.REF_PSI + 2] - c[S_GAMMA1] * e_psid - c[S_GAMMA0] * e_psi - c[S_RHO_PSI] * sw)
     return tau_psi, int_psi
 
 
@@ -228,12 +213,12 @@ def smc_step(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray, ref: np
     smooth = c[S_SMOOTH] != 0.0
     thrust, int_z = _smc_height(c, dt, mem[M_INT_Z], est, ref, smooth)
     tau_psi, int_psi = _smc_yaw(c, dt, mem[M_INT_PSI], est, ref, smooth)
-    vx, int_fx = _smc_axis(c, dt, mem[M_INT_FX], est, ref, EST_FX, REF_FX, smooth)
-    vy, int_fy = _smc_axis(c, dt, mem[M_INT_FY], est, ref, EST_FY, REF_FY, smooth)
+    vx, int_fx = _smc_axis(c, dt, mem[M_INT_FX], est, ref, lay.EST_FX, lay.REF_FX, smooth)
+    vy, int_fy = _smc_axis(c, dt, mem[M_INT_FY], est, ref, lay.EST_FY, lay.REF_FY, smooth)
     # the commanded world tilt acceleration n'' = (v + w2 F^(4)) / c, led by the actuation lag's model
-    nddx = (vx + c[S_W2] * est[EST_FX + 4]) * c[S_INV_C]
-    nddy = (vy + c[S_W2] * est[EST_FY + 4]) * c[S_INV_C]
-    phi, theta, psi = est[EST_PHI], est[EST_THETA], est[EST_PSI]
+    nddx = (vx + c[S_W2] * est[lay.EST_FX + 4]) * c[S_INV_C]
+    nddy = (vy + c[S_W2] * est[lay.EST_FY + 4]) * c[S_INV_C]
+    phi, theta, psi = est[lay.EST_PHI], est[lay.EST_THETA], est[lay.EST_PSI]
     sp, cp = math.sin(psi), math.cos(psi)
     lag = c[S_LAG]
     tp_act = tt_act = 0.0
@@ -244,13 +229,13 @@ def smc_step(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray, ref: np
         tp_act = mem[M_TP_ACT] + a * (mem[M_TP_CMD] - mem[M_TP_ACT])
         tt_act = mem[M_TT_ACT] + a * (mem[M_TT_CMD] - mem[M_TT_ACT])
         a1, a2 = tt_act * c[S_INV_IT], tp_act * c[S_INV_IP]  # delivered [theta'', -phi''] = (a1, -a2)
-        nddx = nddx + _smc_lead(c, est, ref, EST_FX, REF_FX, cp * a1 + sp * a2)
-        nddy = nddy + _smc_lead(c, est, ref, EST_FY, REF_FY, sp * a1 - cp * a2)
+        nddx = nddx + _smc_lead(c, est, ref, lay.EST_FX, lay.REF_FX, cp * a1 + sp * a2)
+        nddy = nddy + _smc_lead(c, est, ref, lay.EST_FY, lay.REF_FY, sp * a1 - cp * a2)
     # the heading-aligned tilt t = [theta, -phi]: t'' = Rz(-psi) n'' - 2 w J t' - w' J t + w^2 t
     t1, t2 = theta, -phi
-    t1d, t2d = est[EST_THETA_RATE], -est[EST_PHI_RATE]
-    w = est[EST_PSI_RATE]
-    wd = ref[REF_PSI + 2]
+    t1d, t2d = est[lay.EST_THETA_RATE], -est[lay.EST_PHI_RATE]
+    w = est[lay.EST_PSI_RATE]
+    wd = ref[lay.REF_PSI + 2]
     t1dd = cp * nddx + sp * nddy + 2.0 * w * t2d + wd * t2 + w * w * t1
     t2dd = -sp * nddx + cp * nddy - 2.0 * w * t1d - wd * t1 + w * w * t2
     tau_theta = c[S_IT] * t1dd
