@@ -400,9 +400,6 @@ class Autopilot(ModeLogic, InnerControl, TelemetryStreams, SetpointHandlers, Par
             self.mav.send(self.mav.timesync_encode(self.t_us * 1000, msg.ts1))
         return 0
 
-    def _on_request_data_stream(self, msg: Any) -> int:
-        return 0
-
     def summary(self) -> dict[str, Any]:
         """Counters and state for the final report."""
         return {

@@ -351,8 +351,3 @@ class Emulator:
                 "max_abs_torque_yaw_nm": self.dist_max_abs[3],
             },
         }
-
-
-def finite_state(x: list[float]) -> bool:
-    """True if every state component is finite."""
-    return all(math.isfinite(v) for v in x)

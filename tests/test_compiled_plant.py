@@ -210,15 +210,17 @@ def test_the_kernels_wrap_angle_equals_the_scalar_paths_bit_for_bit() -> None:
 
 
 def test_the_kernels_compile_the_scalar_paths_own_functions_and_their_cache_follows_them() -> None:
-    """The cable's projection and PX4's quaternion helpers are one source: the kernels are the scalar functions
-    themselves, compiled (``.py_func``); and the file of each is among ``layout.SHARED_SOURCES``, whose change drops
-    the compiled cache (numba keys an inlined function's code by its caller's file only)."""
+    """The cable's projection, PX4's quaternion helpers, the laws' switching and thrust direction and the filter's
+    block models, covariance propagation, Euler rates and world tilt are one source: the kernels are the scalar
+    functions themselves, compiled (``.py_func``); and the file of each is among ``layout.SHARED_SOURCES``, whose
+    change drops the compiled cache (numba keys an inlined function's code by its caller's file only)."""
     import inspect
     from pathlib import Path
 
-    from estimators.model import cable, frames, rotations
+    from estimators.filters import small_kf
+    from estimators.model import cable, flatness, frames, rotations
     from offboard.control import smc
-    from offboard.harness.compiled import attitude_law, px4_loops
+    from offboard.harness.compiled import attitude_law, kf, kf_predict, px4_loops, smc_law
     from sim_bridge.inner import px4_inner
 
     pairs = [
@@ -233,6 +235,13 @@ def test_the_kernels_compile_the_scalar_paths_own_functions_and_their_cache_foll
         (px4_loops._body_z, px4_inner.body_z),
         (px4_loops._shortest_rotation, px4_inner.shortest_rotation),
         (attitude_law._switching, smc.switching),
+        (smc_law._switching, smc.switching),
+        (smc_law._thrust_direction, rotations.thrust_direction_trig),
+        (kf_predict._pendulum_terms, small_kf.pendulum_terms),
+        (kf_predict._pendulum_noise, small_kf.pendulum_noise),
+        (kf_predict._sandwich3, small_kf.sandwich3),
+        (kf._euler_rates, rotations.euler_rates),
+        (kf._world_tilt, flatness.world_tilt),
     ]
     root = Path(lay.__file__).resolve().parents[3]
     for kernel, scalar in pairs:

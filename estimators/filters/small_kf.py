@@ -150,10 +150,27 @@ def _predict3(x: list[float], p: Matrix, phi: Matrix, gamma: list[float] | None,
 
 
 def propagate_cov3(p: Matrix, phi: Matrix, q: Matrix) -> None:
-    """``P <- Phi P Phi^T + Q`` in place for three states, unrolled, ``P`` and ``Q`` symmetric (their upper
-    triangles are read). ``offboard.harness.compiled.kf`` propagates a run's covariances with the same expressions."""
+    """``P <- Phi P Phi^T + Q`` in place for three states, unrolled (:func:`sandwich3`), ``P`` and ``Q`` symmetric
+    (their upper triangles are read)."""
     (f00, f01, f02), (f10, f11, f12), (f20, f21, f22) = phi
-    (p00, p01, p02), (_, p11, p12), (_, _, p22) = p
+    r0, r1, r2 = p
+    (q00, q01, q02), (_, q11, q12), (_, _, q22) = q
+    upper = (r0[0], r0[1], r0[2], r1[1], r1[2], r2[2])
+    phi9 = (f00, f01, f02, f10, f11, f12, f20, f21, f22)
+    n00, n01, n02, n11, n12, n22 = sandwich3(phi9, upper, (q00, q01, q02, q11, q12, q22))
+    r0[0], r0[1], r0[2] = n00, n01, n02
+    r1[0], r1[1], r1[2] = n01, n11, n12
+    r2[0], r2[1], r2[2] = n02, n12, n22
+
+
+def sandwich3(
+    phi: tuple[float, ...], p: tuple[float, ...], q: tuple[float, ...]
+) -> tuple[float, float, float, float, float, float]:
+    """``Phi P Phi^T + Q`` of three states: ``phi`` the transition's 9 entries row by row, ``p`` and ``q`` the upper
+    triangles ``(x00, x01, x02, x11, x12, x22)`` of symmetric ``P`` and ``Q``; the result's upper triangle. Plain
+    floats and tuples: the compiled filter (``offboard.harness.compiled.kf_predict``) compiles this very function."""
+    f00, f01, f02, f10, f11, f12, f20, f21, f22 = phi
+    p00, p01, p02, p11, p12, p22 = p
     # A = Phi P (rows), then A Phi^T
     a00, a01, a02 = (
         f00 * p00 + f01 * p01 + f02 * p02,
@@ -170,17 +187,15 @@ def propagate_cov3(p: Matrix, phi: Matrix, q: Matrix) -> None:
         f20 * p01 + f21 * p11 + f22 * p12,
         f20 * p02 + f21 * p12 + f22 * p22,
     )
-    (q00, q01, q02), (_, q11, q12), (_, _, q22) = q
-    n00 = a00 * f00 + a01 * f01 + a02 * f02 + q00
-    n01 = a00 * f10 + a01 * f11 + a02 * f12 + q01
-    n02 = a00 * f20 + a01 * f21 + a02 * f22 + q02
-    n11 = a10 * f10 + a11 * f11 + a12 * f12 + q11
-    n12 = a10 * f20 + a11 * f21 + a12 * f22 + q12
-    n22 = a20 * f20 + a21 * f21 + a22 * f22 + q22
-    r0, r1, r2 = p
-    r0[0], r0[1], r0[2] = n00, n01, n02
-    r1[0], r1[1], r1[2] = n01, n11, n12
-    r2[0], r2[1], r2[2] = n02, n12, n22
+    q00, q01, q02, q11, q12, q22 = q
+    return (
+        a00 * f00 + a01 * f01 + a02 * f02 + q00,
+        a00 * f10 + a01 * f11 + a02 * f12 + q01,
+        a00 * f20 + a01 * f21 + a02 * f22 + q02,
+        a10 * f10 + a11 * f11 + a12 * f12 + q11,
+        a10 * f20 + a11 * f21 + a12 * f22 + q12,
+        a20 * f20 + a21 * f21 + a22 * f22 + q22,
+    )
 
 
 def predict_kinematic(x: list[float], p: Matrix, h: float, q_v: float, q_b: float, q_p: float, u: float) -> None:
@@ -378,6 +393,7 @@ __all__ = [
     "propagate_cov3",
     "rate_first_row",
     "rate_model",
+    "sandwich3",
     "update_one",
     "update_row",
 ]

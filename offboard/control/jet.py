@@ -68,7 +68,7 @@ class Jet:
     """Truncated Taylor series of a scalar function at one instant: ``c[k] = f^(k)(t) / k!``.
 
     Supports ``+``, ``-``, ``*`` (with jets of the same length and with plain numbers), unary minus, division by a
-    number, :meth:`sin`, :meth:`cos`, :meth:`sincos` and :meth:`compose`.
+    number, :meth:`sin`, :meth:`cos`, and :meth:`sincos`.
     """
 
     __slots__ = ("c",)
@@ -156,40 +156,11 @@ class Jet:
     def cos(self) -> Jet:
         return self.sincos()[1]
 
-    def compose(self, inner: Jet) -> Jet:
-        """``self`` is the jet of ``f`` at ``inner.value``; returns the jet of ``f(inner(t))`` at ``t``."""
-        return Jet._raw(compose_series(self.c, inner.c))
-
-
-def polynomial_jet(coefficients: Sequence[float], x: float, n: int) -> tuple[float, ...]:
-    """Normalized Taylor coefficients (orders 0..n-1, in x) of ``sum_j coefficients[j] x^j`` at ``x``.
-
-    Repeated synthetic division (a Taylor shift), exact for polynomials up to rounding.
-    """
-    a = [float(v) for v in coefficients]
-    deg = len(a) - 1
-    out = []
-    for _k in range(n):
-        if deg < 0:
-            out.append(0.0)
-            continue
-        # Horner: value of the current polynomial, and the quotient of division by (X - x)
-        acc = a[deg]
-        q = [0.0] * deg
-        for j in range(deg - 1, -1, -1):
-            q[j] = acc
-            acc = acc * x + a[j]
-        out.append(acc)
-        a = q
-        deg -= 1
-    return tuple(out)
-
 
 class PolynomialTaylor:
     """A fixed polynomial with precomputed tables for fast Taylor coefficients: ``p^(k)(x) / k!`` for k < n.
 
-    ``coefficients[j]`` multiplies ``x^j``. About twice as fast as :func:`polynomial_jet` (one Horner pass per
-    order over a precomputed table).
+    ``coefficients[j]`` multiplies ``x^j``: one Horner pass per order over a precomputed table.
     """
 
     __slots__ = ("coefficients", "tables")

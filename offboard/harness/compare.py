@@ -160,10 +160,6 @@ def reference_feasibility(the_cases: list[Case], vehicle: Any) -> dict[str, Any]
     return {case.label: smc_feasibility(case.scenario.reference, case.scenario.duration, vehicle) for case in the_cases}
 
 
-def _none_if_nan(v: float) -> float | None:
-    return None if not math.isfinite(v) else float(v)
-
-
 def require_load(vehicle: Any, where: str = "") -> None:
     """UserError unless ``vehicle`` carries a load: compare and sweep judge the load's swing and tracking, which
     a vehicle without one does not have (its plant would swing a massless pendulum)."""

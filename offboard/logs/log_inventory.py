@@ -13,13 +13,13 @@ block of metrics.json (``inventory``) and says whether the estimator can run (``
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
-from estimators.model.measurements import Attitude, PositionVelocity
+from estimators.model.measurements import Attitude, Measurement, PositionVelocity
 from offboard.flight.link.setpoints import decode as decode_setpoint
 from offboard.flight.link.telemetry import IMU_RANK, TelemetryDecoder
 from offboard.logs.flight_modes import (
@@ -302,6 +302,25 @@ class Segment:
     def as_dict(self) -> dict[str, Any]:
         return {"epoch": self.epoch, "from_s": self.t0, "to_s": self.t1, "duration_s": self.t1 - self.t0}
 
+    def holds(self, epoch: int, t: float) -> bool:
+        """Whether vehicle time ``t`` (s) of clock epoch ``epoch`` falls within the segment (both ends included)."""
+        return self.epoch == epoch and self.t0 <= t <= self.t1
+
+
+def records_by_epoch(events: Iterable[Event], ap: int | None) -> Iterator[tuple[int, Measurement]]:
+    """The measurement records of system ``ap`` in log order, each with its clock epoch: a new epoch at each clock
+    jump (:func:`clock_jump`) between consecutive attitude samples, the epochs :class:`Segment` counts."""
+    epoch, t_att = 0, -math.inf
+    for e in events:
+        if e.kind != "m" or e.sysid != ap:
+            continue
+        m = e.payload
+        if isinstance(m, Attitude):
+            if clock_jump(m.t, t_att) is not None:
+                epoch += 1
+            t_att = m.t
+        yield epoch, m
+
 
 def flight_segments(sc: Scan) -> tuple[list[Segment], dict[str, Any]]:
     """The airborne segments of the autopilot's stream and the facts behind them.
@@ -405,6 +424,7 @@ __all__ = [
     "clock_jump",
     "flight_segments",
     "is_offboard_mode",
+    "records_by_epoch",
     "scan",
     "type_name",
     "vehicle_time_of",

@@ -49,6 +49,7 @@ from offboard.logs.log_inventory import (
     SystemInfo,
     clock_jump,
     flight_segments,
+    records_by_epoch,
     vehicle_time_of,
 )
 from offboard.logs.log_inventory import scan as _scan
@@ -160,18 +161,11 @@ def _end_at_flip(
     flip, a crash): no multirotor flies that way, and the filter's model of a flying vehicle does not hold after it
     (the autopilot may not notice the vehicle is on the ground). Returns the segments and the flips."""
     out, flips = [], []
-    epoch, t_last = 0, -math.inf
     firsts: dict[int, float] = {}
-    for e in events:
-        if e.kind != "m" or e.sysid != ap or not isinstance(e.payload, Attitude):
-            continue
-        m = e.payload
-        if clock_jump(m.t, t_last) is not None:
-            epoch += 1
-        t_last = m.t
-        if math.cos(m.phi) * math.cos(m.theta) < 0.0:
+    for epoch, m in records_by_epoch(events, ap):
+        if isinstance(m, Attitude) and math.cos(m.phi) * math.cos(m.theta) < 0.0:
             for i, sg in enumerate(segments):
-                if i not in firsts and sg.epoch == epoch and sg.t0 <= m.t <= sg.t1:
+                if i not in firsts and sg.holds(epoch, m.t):
                     firsts[i] = m.t
     for i, sg in enumerate(segments):
         if i in firsts:

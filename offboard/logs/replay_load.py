@@ -12,7 +12,7 @@ import numpy as np
 from estimators.identification.load_id import LoadIdentification, identify_load, resample
 from estimators.model.measurements import Attitude, Imu, PositionVelocity
 from estimators.model.vehicle import Vehicle
-from offboard.logs.log_inventory import Event, Segment, clock_jump
+from offboard.logs.log_inventory import Event, Segment, records_by_epoch
 
 #: time dropped at each end of an airborne segment (s): take-off and touch-down are not a hanging load's motion
 EDGE_S = 2.0
@@ -22,16 +22,7 @@ def segment_stretches(events: list[Event], ap: int | None, segments: list[Segmen
     """Per airborne segment: (t_imu, f_body, t_att, euler, t_vel, v_world) arrays of the autopilot's records
     (``t_vel`` / ``v_world`` None when the segment has no position record), ``EDGE_S`` trimmed at both ends."""
     per: list[dict[str, list[Any]]] = [{"imu": [], "att": [], "pv": []} for _ in segments]
-    epoch = 0
-    t_last = -np.inf
-    for e in events:
-        if e.kind != "m" or e.sysid != ap:
-            continue
-        m = e.payload
-        if isinstance(m, Attitude):
-            if clock_jump(m.t, t_last) is not None:
-                epoch += 1
-            t_last = m.t
+    for epoch, m in records_by_epoch(events, ap):
         for i, sg in enumerate(segments):
             if sg.epoch == epoch and sg.t0 + EDGE_S <= m.t <= sg.t1 - EDGE_S:
                 if isinstance(m, Imu):

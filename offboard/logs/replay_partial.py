@@ -15,7 +15,7 @@ import numpy as np
 
 from estimators.model.measurements import Attitude
 from estimators.model.vehicle import Vehicle
-from offboard.logs.log_inventory import Scan, clock_jump, flight_segments
+from offboard.logs.log_inventory import Scan, flight_segments, records_by_epoch
 from offboard.logs.replay_load import identify_from_log, load_block
 
 #: the columns of a partial replay's timeseries.slts
@@ -57,16 +57,11 @@ def replay_partial(sc: Scan, inv: dict[str, Any], vehicle: Vehicle) -> tuple[np.
     hz = np.array([h[1] for h in heights]) if heights else np.zeros(0)
     hv = np.array([h[2] for h in heights]) if heights else np.zeros(0)
     rows: list[tuple[float, ...]] = []
-    epoch, t_last = 0, -math.inf
     ground: dict[int, float] = {}
-    for e in sc.events:
-        if e.kind != "m" or e.sysid != ap or not isinstance(e.payload, Attitude):
+    for epoch, m in records_by_epoch(sc.events, ap):
+        if not isinstance(m, Attitude):
             continue
-        m = e.payload
-        if clock_jump(m.t, t_last) is not None:
-            epoch += 1
-        t_last = m.t
-        k = next((i for i, sg in enumerate(segments) if sg.epoch == epoch and sg.t0 <= m.t <= sg.t1), None)
+        k = next((i for i, sg in enumerate(segments) if sg.holds(epoch, m.t)), None)
         if k is None:
             continue
         if k not in ground:

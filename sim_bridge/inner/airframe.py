@@ -90,11 +90,6 @@ class Mixer:
         self.cmd = out
         return out
 
-    def allocate_motors(self, motors: list[float]) -> None:
-        """Command the four motors directly (N), clamped to the limits."""
-        fmax = self.fmax
-        self.cmd = [min(max(m, 0.0), fmax) for m in motors]
-
     def step(self) -> tuple[float, float, float, float]:
         """Advance the motor lag one period; returns the actual (thrust N, tau_x, tau_y, tau_z N m, FLU)."""
         al = self.alpha

@@ -43,9 +43,6 @@ class ModeLogic:
     """Modes, arming, failsafes and per-mode targets of :class:`sim_bridge.autopilot.Autopilot`."""
 
     # ================================================================== modes
-    def _kind(self) -> str:
-        return self.mode.kind
-
     def _set_mode(self, mode: Mode, reason: str = "") -> None:
         """Enter a mode: capture the hold targets from the current state."""
         x = self.x

@@ -298,11 +298,6 @@ def load_position(x: Sequence[float], p: PlantParams) -> tuple[float, float, flo
     return (x[0] + p.l * x[12], x[1] + p.l * x[13], x[2] + p.l * x[14])
 
 
-def load_velocity(x: Sequence[float], p: PlantParams) -> tuple[float, float, float]:
-    """Load velocity ``xi' + l r'``, m/s, world NWU."""
-    return (x[3] + p.l * x[15], x[4] + p.l * x[16], x[5] + p.l * x[17])
-
-
 def hover_input(p: PlantParams) -> list[float]:
     """The input that holds the vehicle in hover with the load at rest: ``u = (M + m) g``, no torque."""
     return make_input((p.M + p.m) * p.g)

@@ -35,18 +35,15 @@ Clock
 
 from __future__ import annotations
 
-import contextlib
 import os
-import signal
 import socket
-import subprocess
 import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import TracebackType
 
 from sim_bridge.sitl.ardupilot_monitor import PayloadMonitor
+from sim_bridge.sitl.sitl_process import SitlProcess, shared_folder
 
 #: environment variable naming the SITL folder (``run-copter``, ``bin/arducopter``)
 ENV_SITL = "SLUNG_ARDUPILOT_SITL"
@@ -65,12 +62,7 @@ def default_sitl_path() -> Path:
     """``$SLUNG_ARDUPILOT_SITL``, else ``<repo>/../shared/ardupilot-sitl`` looked for beside each folder above the
     repository (a git worktree at ``work/wt/NAME`` finds ``work/shared/ardupilot-sitl``); the first candidate when
     none exists."""
-    env = os.environ.get(ENV_SITL)
-    if env:
-        return Path(env)
-    repo = Path(__file__).resolve().parents[2]
-    candidates = [parent / "shared" / "ardupilot-sitl" for parent in (repo, *repo.parents)]
-    return next((c for c in candidates if (c / "run-copter").is_file()), candidates[1])
+    return shared_folder("ardupilot-sitl", ENV_SITL, "run-copter")
 
 
 def why_no_ardupilot_sitl(root: Path | None = None) -> str | None:
@@ -97,30 +89,22 @@ def port_in_use(port: int) -> bool:
 
 
 @dataclass
-class ArduPilotSitl:
+class ArduPilotSitl(SitlProcess):
     """One ArduPilot Copter SITL with its slung payload (see the module docstring).
 
     instance: 0-9 (the payload connects only on 0); workdir: eeprom, DataFlash logs (a new temporary folder when
     None); payload_kg: the load (0: none); line_m: its line (m); extra_args: more ``arducopter`` options.
     """
 
-    instance: int = 0
-    workdir: Path | None = None
-    root: Path | None = None
+    NAME = "ArduPilot SITL"
+    LOG_NAME = "arducopter.log"
+    ERROR = ArduPilotSitlError
+
+    ready_timeout_s: float = 120.0  # ready: the pre-arm checks passed and EKF3 gives a local position (~40 s)
     payload_kg: float = 1.2
     line_m: float = 1.0
-    ready_timeout_s: float = 120.0
-    stop_timeout_s: float = 10.0
     extra_args: tuple[str, ...] = ()
-    _proc: subprocess.Popen[bytes] | None = field(default=None, init=False, repr=False)
-    _log_fh: object = field(default=None, init=False, repr=False)
     monitor: PayloadMonitor | None = field(default=None, init=False)
-    #: wall-clock seconds from the process start to readiness (pre-arm checks passed, EKF3 local position)
-    ready_after_s: float | None = field(default=None, init=False)
-
-    def __post_init__(self) -> None:
-        if not (0 <= self.instance <= 9):
-            raise ValueError(f"ArduPilot SITL instance must be 0..9, got {self.instance}")
 
     # ------------------------------------------------------------------------------------------ facts ---
     @property
@@ -133,29 +117,11 @@ class ArduPilotSitl:
         """SERIAL1, where :class:`PayloadMonitor` listens."""
         return f"tcp:127.0.0.1:{SERIAL1_PORT + 10 * self.instance}"
 
-    @property
-    def log_path(self) -> Path:
-        """ArduPilot's console output (stdout and stderr)."""
-        assert self.workdir is not None, "start() first"
-        return self.workdir / "arducopter.log"
-
     def dataflash_logs(self) -> list[Path]:
         """The DataFlash logs written so far (one per arming), oldest first."""
         if self.workdir is None:
             return []
         return sorted((self.workdir / "logs").glob("*.BIN"))
-
-    def log_text(self) -> str:
-        """ArduPilot's console output so far."""
-        try:
-            return self.log_path.read_text(encoding="utf-8", errors="replace")
-        except (OSError, AssertionError):
-            return ""
-
-    @property
-    def running(self) -> bool:
-        """Whether the ArduPilot process is alive."""
-        return self._proc is not None and self._proc.poll() is None
 
     # -------------------------------------------------------------------------------------- lifetime ---
     def start(self) -> ArduPilotSitl:
@@ -175,35 +141,15 @@ class ArduPilotSitl:
             self.workdir = Path(tempfile.mkdtemp(prefix=f"slung-ardupilot-{self.instance}-"))
         self.workdir.mkdir(parents=True, exist_ok=True)
         env = dict(os.environ, SLUNG_PAYLOAD_KG=f"{self.payload_kg:g}", SLUNG_LINE_M=f"{self.line_m:g}")
-        self._log_fh = open(self.log_path, "wb", buffering=0)  # noqa: SIM115 - closed in stop()
-        t0 = time.monotonic()
         cmd = [str(root / "run-copter"), str(self.instance), str(self.workdir), "--", "--serial0", "tcp:0"]
-        self._proc = subprocess.Popen(
-            [*cmd, *self.extra_args],
-            cwd=self.workdir,
-            env=env,
-            stdin=subprocess.DEVNULL,
-            stdout=self._log_fh,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-        )
-        try:
-            self._wait_ready(t0)
-        except BaseException:
-            self.stop()
-            raise
-        self.ready_after_s = time.monotonic() - t0
-        return self
+        return self._launch([*cmd, *self.extra_args], env)
 
     def _wait_ready(self, t0: float) -> None:
         assert self._proc is not None
         deadline = t0 + self.ready_timeout_s
         while self.monitor is None:  # SERIAL1 listens a moment after the process starts
             if self._proc.poll() is not None:
-                raise ArduPilotSitlError(
-                    f"ArduPilot SITL instance {self.instance} exited with code {self._proc.returncode} before it "
-                    f"was ready; log {self.log_path}: {self._tail()}"
-                )
+                raise self._exited()
             try:
                 self.monitor = PayloadMonitor.attach(self.monitor_url)
             except OSError:
@@ -214,53 +160,16 @@ class ArduPilotSitl:
             if self.monitor.ready():
                 return
             if self._proc.poll() is not None:
-                raise ArduPilotSitlError(
-                    f"ArduPilot SITL instance {self.instance} exited with code {self._proc.returncode} before it "
-                    f"was ready; log {self.log_path}: {self._tail()}"
-                )
+                raise self._exited()
             time.sleep(0.2)
         raise ArduPilotSitlError(
             f"ArduPilot SITL instance {self.instance} not ready within {self.ready_timeout_s:g} s "
             f"({self.monitor.readiness()}); log {self.log_path}: {self._tail()}"
         )
 
-    def _tail(self, lines: int = 5) -> str:
-        return " | ".join(self.log_text().strip().splitlines()[-lines:])
-
-    def stop(self) -> int | None:
-        """Close the monitor, SIGTERM to the process group, SIGKILL after ``stop_timeout_s``; the exit code (None if
-        never started). Idempotent."""
+    def _before_stop(self) -> None:
         if self.monitor is not None:
             self.monitor.close()
-        proc = self._proc
-        code = None
-        if proc is not None:
-            if proc.poll() is None:
-                self._signal_group(proc, signal.SIGTERM)
-                try:
-                    proc.wait(self.stop_timeout_s)
-                except subprocess.TimeoutExpired:
-                    self._signal_group(proc, signal.SIGKILL)
-                    proc.wait(5.0)
-            code = proc.returncode
-        fh = self._log_fh
-        if fh is not None:
-            fh.close()  # type: ignore[attr-defined]
-            self._log_fh = None
-        return code
-
-    @staticmethod
-    def _signal_group(proc: subprocess.Popen[bytes], sig: int) -> None:
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(proc.pid, sig)  # start_new_session: the group id is the process' id
-
-    def __enter__(self) -> ArduPilotSitl:
-        return self.start() if not self.running else self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.stop()
 
 
 __all__ = [

@@ -36,18 +36,16 @@ PX4's clock
 
 from __future__ import annotations
 
-import contextlib
 import os
 import shutil
-import signal
-import subprocess
 import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import TracebackType
 
 from pymavlink import mavutil
+
+from sim_bridge.sitl.sitl_process import SitlProcess, shared_folder
 
 #: environment variable naming the SITL folder (``bin/px4``, ``etc``)
 ENV_SITL = "SLUNG_PX4_SITL"
@@ -66,12 +64,7 @@ class Px4SitlError(RuntimeError):
 def default_sitl_path() -> Path:
     """``$SLUNG_PX4_SITL``, else ``<repo>/../shared/px4-sitl``, looked for beside each folder above the repository
     (a git worktree at ``work/wt/NAME`` finds ``work/shared/px4-sitl``); the first candidate when none exists."""
-    env = os.environ.get(ENV_SITL)
-    if env:
-        return Path(env)
-    repo = Path(__file__).resolve().parents[1]
-    candidates = [parent / "shared" / "px4-sitl" for parent in repo.parents]
-    return next((c for c in candidates if (c / "bin" / "px4").is_file()), candidates[0])
+    return shared_folder("px4-sitl", ENV_SITL, "bin/px4")
 
 
 def why_no_px4_sitl(root: Path | None = None) -> str | None:
@@ -118,7 +111,7 @@ def _is_flattened_alias(path: Path) -> bool:
 
 
 @dataclass
-class Px4Sitl:
+class Px4Sitl(SitlProcess):
     """One PX4 SITL instance with the SIH quadrotor or an external simulator (``model``; see the module docstring).
 
     instance: 0-9 (ports and system id shift by it); workdir: parameters, dataman, logs (a new temporary folder
@@ -132,27 +125,19 @@ class Px4Sitl:
     normal priority; 0 leaves it alone.
     """
 
-    instance: int = 0
-    workdir: Path | None = None
-    root: Path | None = None
-    ready_timeout_s: float = 60.0
-    stop_timeout_s: float = 10.0
+    NAME = "PX4 SITL"
+    LOG_NAME = "px4.log"
+    ERROR = Px4SitlError
+
     params: dict[str, float] = field(default_factory=dict)
     nice: int = -10
     #: PX4_SIM_MODEL: the SIH quadrotor (default), or ``px4_hil.HIL_MODEL`` for an external simulator on TCP
     #: 4560 + instance (``sim_bridge.sitl.px4_hil``: the vehicle with its slung load)
     model: str = SIH_MODEL
-    _proc: subprocess.Popen[bytes] | None = field(default=None, init=False, repr=False)
     _own_workdir: bool = field(default=False, init=False, repr=False)
-    _log_fh: object = field(default=None, init=False, repr=False)
-    ready_after_s: float | None = field(default=None, init=False)
     #: local monotonic time (s) at which the PX4 process was started: PX4's boot clock (ULog timestamps,
     #: MAVLink time_boot_ms) runs from about then, in real time (SIH is not lockstepped)
     started_monotonic: float | None = field(default=None, init=False)
-
-    def __post_init__(self) -> None:
-        if not (0 <= self.instance <= 9):
-            raise ValueError(f"PX4 SITL instance must be 0..9, got {self.instance}")
 
     # ------------------------------------------------------------------------------------------ facts ---
     @property
@@ -165,29 +150,11 @@ class Px4Sitl:
         """MAVLink system id of this instance (instance + 1)."""
         return self.instance + 1
 
-    @property
-    def log_path(self) -> Path:
-        """PX4's console output (stdout and stderr)."""
-        assert self.workdir is not None, "start() first"
-        return self.workdir / "px4.log"
-
     def ulogs(self) -> list[Path]:
         """The ULog files written so far (one per arming), oldest first."""
         if self.workdir is None:
             return []
         return sorted((self.workdir / "log").glob("*/*.ulg"), key=lambda p: (p.stat().st_mtime, p.name))
-
-    def log_text(self) -> str:
-        """PX4's console output so far."""
-        try:
-            return self.log_path.read_text(encoding="utf-8", errors="replace")
-        except (OSError, AssertionError):
-            return ""
-
-    @property
-    def running(self) -> bool:
-        """Whether the PX4 process is alive."""
-        return self._proc is not None and self._proc.poll() is None
 
     # -------------------------------------------------------------------------------------- lifetime ---
     def start(self) -> Px4Sitl:
@@ -210,28 +177,13 @@ class Px4Sitl:
             env.pop("PX4_SIMULATOR", None)
         for name, value in self.params.items():
             env[f"PX4_PARAM_{name}"] = repr(value) if isinstance(value, float) else str(value)
-        self._log_fh = open(self.log_path, "wb", buffering=0)  # noqa: SIM115 - closed in stop()
-        t0 = time.monotonic()
-        self.started_monotonic = t0
         cmd = [str(bin_dir / "px4"), "-d", "-i", str(self.instance), "-w", str(self.workdir), str(root / "etc")]
         if self.nice != 0 and shutil.which("nice"):
             cmd = ["nice", "-n", str(self.nice), *cmd]  # niceness before exec: every PX4 thread inherits it
-        self._proc = subprocess.Popen(
-            cmd,
-            cwd=self.workdir,
-            env=env,
-            stdin=subprocess.DEVNULL,
-            stdout=self._log_fh,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-        )
-        try:
-            self._wait_ready(t0)
-        except BaseException:
-            self.stop()
-            raise
-        self.ready_after_s = time.monotonic() - t0
-        return self
+        return self._launch(cmd, env)
+
+    def _started(self, t0: float) -> None:
+        self.started_monotonic = t0
 
     def _wait_ready(self, t0: float) -> None:
         assert self._proc is not None
@@ -239,18 +191,12 @@ class Px4Sitl:
             if READY_TEXT in self.log_text():
                 return
             if self._proc.poll() is not None:
-                raise Px4SitlError(
-                    f"PX4 SITL instance {self.instance} exited with code {self._proc.returncode} before it was "
-                    f"ready; log {self.log_path}: {self._tail()}"
-                )
+                raise self._exited()
             time.sleep(0.1)
         raise Px4SitlError(
             f"PX4 SITL instance {self.instance} not ready within {self.ready_timeout_s:g} s; "
             f"log {self.log_path}: {self._tail()}"
         )
-
-    def _tail(self, lines: int = 5) -> str:
-        return " | ".join(self.log_text().strip().splitlines()[-lines:])
 
     def run_for(self, seconds: float, wall_limit_s: float | None = None) -> float:
         """Let PX4 run by itself for ``seconds`` of its own boot clock, read from the ``time_boot_ms`` of what it
@@ -277,46 +223,11 @@ class Px4Sitl:
             conn.close()
         return passed
 
-    def stop(self) -> int | None:
-        """SIGTERM to PX4's process group, SIGKILL after ``stop_timeout_s``; the exit code (None if never started).
-        Idempotent."""
-        proc = self._proc
-        code = None
-        if proc is not None:
-            if proc.poll() is None:
-                self._signal_group(proc, signal.SIGTERM)
-                try:
-                    proc.wait(self.stop_timeout_s)
-                except subprocess.TimeoutExpired:
-                    self._signal_group(proc, signal.SIGKILL)
-                    proc.wait(5.0)
-            else:
-                self._signal_group(proc, signal.SIGKILL)  # children left by a dead parent
-            code = proc.returncode
-        fh = self._log_fh
-        if fh is not None:
-            fh.close()  # type: ignore[attr-defined]
-            self._log_fh = None
-        return code
-
-    @staticmethod
-    def _signal_group(proc: subprocess.Popen[bytes], sig: int) -> None:
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(proc.pid, sig)  # start_new_session: the group id is the PX4 process' id
-
     def cleanup(self) -> None:
         """Stop and remove the working folder if this object made it."""
         self.stop()
         if self._own_workdir and self.workdir is not None:
             shutil.rmtree(self.workdir, ignore_errors=True)
-
-    def __enter__(self) -> Px4Sitl:
-        return self.start() if not self.running else self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.stop()
 
 
 __all__ = [

@@ -25,26 +25,9 @@ import numpy as np
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc
 from offboard.control.smc_attitude import AttitudeParams
+from offboard.harness.compiled import layout as lay
 from offboard.harness.compiled.laws import estimate_is_finite
 from offboard.harness.compiled.layout import (
-    EST_ALPHA_X,
-    EST_ALPHA_X_RATE,
-    EST_ALPHA_Y,
-    EST_ALPHA_Y_RATE,
-    EST_FX,
-    EST_FY,
-    EST_PHI,
-    EST_PHI_RATE,
-    EST_PSI,
-    EST_PSI_RATE,
-    EST_THETA,
-    EST_THETA_RATE,
-    EST_Z,
-    EST_Z_RATE,
-    REF_FX,
-    REF_FY,
-    REF_PSI,
-    REF_Z,
     inline_kernel,
     pack_constants,
     pure_kernel,
@@ -153,9 +136,9 @@ def _reference_is_finite(ref: np.ndarray) -> bool:
     heading, summed in the scalar law's order (an overflowing sum is refused too)."""
     sx, sy = 0.0, 0.0
     for i in range(6):
-        sx = sx + ref[REF_FX + i]
-        sy = sy + ref[REF_FY + i]
-    total = sx + sy + ref[REF_Z] + ref[REF_Z + 1] + ref[REF_Z + 2] + ref[REF_PSI] + ref[REF_PSI + 1]
+        sx = sx + ref[lay.REF_FX + i]
+        sy = sy + ref[lay.REF_FY + i]
+    total = sx + sy + ref[lay.REF_Z] + ref[lay.REF_Z + 1] + ref[lay.REF_Z + 2] + ref[lay.REF_PSI] + ref[lay.REF_PSI + 1]
     return math.isfinite(total)
 
 
@@ -165,10 +148,10 @@ def _height(c: np.ndarray, int_z: float, est: np.ndarray, ref: np.ndarray, n: tu
     whether it was clipped); ``int_z`` the updated height-error integral (m s), ``n`` the thrust direction (world)."""
     n1, n2, n3 = n[0], n[1], n[2]
     if c[A_WITH_LOAD] != 0.0:  # the cable from the planar angles (estimators.model.cable.cable_from_planar)
-        ay, ax = est[EST_ALPHA_Y], est[EST_ALPHA_X]
+        ay, ax = est[lay.EST_ALPHA_Y], est[lay.EST_ALPHA_X]
         ty, tx = math.tan(ay), math.tan(ax)
-        dty = est[EST_ALPHA_Y_RATE] / math.cos(ay) ** c[A_TWO]
-        dtx = est[EST_ALPHA_X_RATE] / math.cos(ax) ** c[A_TWO]
+        dty = est[lay.EST_ALPHA_Y_RATE] / math.cos(ay) ** c[A_TWO]
+        dtx = est[lay.EST_ALPHA_X_RATE] / math.cos(ax) ** c[A_TWO]
         nn = math.sqrt(1.0 + ty * ty + tx * tx)
         r1, r2, r3 = ty / nn, tx / nn, -1.0 / nn
         dn = (ty * dty + tx * dtx) / nn
@@ -179,11 +162,11 @@ def _height(c: np.ndarray, int_z: float, est: np.ndarray, ref: np.ndarray, n: tu
     else:
         g_z = py_max(n3, 0.3) / c[A_M]
         f_z = -c[A_G]
-    e_z = est[EST_Z] - ref[REF_Z]
-    e_zd = est[EST_Z_RATE] - ref[REF_Z + 1]
+    e_z = est[lay.EST_Z] - ref[lay.REF_Z]
+    e_zd = est[lay.EST_Z_RATE] - ref[lay.REF_Z + 1]
     s_z = e_zd + c[A_LAM1] * e_z + c[A_LAM0] * int_z
     sw_z = c[A_RHO_Z] * _switching(s_z, c[A_EPS_Z], smooth) + 0.5 * c[A_REACH_Z] * s_z
-    thrust = (ref[REF_Z + 2] - f_z - c[A_LAM1] * e_zd - c[A_LAM0] * e_z - sw_z) / g_z
+    thrust = (ref[lay.REF_Z + 2] - f_z - c[A_LAM1] * e_zd - c[A_LAM0] * e_z - sw_z) / g_z
     if thrust > c[A_THRUST_MAX]:
         return c[A_THRUST_MAX], True
     if thrust < c[A_THRUST_MIN]:
@@ -222,22 +205,22 @@ def _errors(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray, ref: np.
     ex, ey = mem[AM_EX : AM_EX + 5], mem[AM_EY : AM_EY + 5]
     if c[A_WITH_LOAD] != 0.0:
         for i in range(5):
-            ex[i] = est[EST_FX + i] - ref[REF_FX + i]
-            ey[i] = est[EST_FY + i] - ref[REF_FY + i]
+            ex[i] = est[lay.EST_FX + i] - ref[lay.REF_FX + i]
+            ey[i] = est[lay.EST_FY + i] - ref[lay.REF_FY + i]
         if c[A_DRAG_TILT] > 0.0:  # F^(4) = c (a + n - kt v), v the vehicle's velocity F' - l a'
-            ex[4] = ex[4] - c[A_C] * c[A_DRAG_TILT] * (est[EST_FX + 1] - c[A_L] * est[EST_ALPHA_Y_RATE])
-            ey[4] = ey[4] - c[A_C] * c[A_DRAG_TILT] * (est[EST_FY + 1] - c[A_L] * est[EST_ALPHA_X_RATE])
+            ex[4] = ex[4] - c[A_C] * c[A_DRAG_TILT] * (est[lay.EST_FX + 1] - c[A_L] * est[lay.EST_ALPHA_Y_RATE])
+            ey[4] = ey[4] - c[A_C] * c[A_DRAG_TILT] * (est[lay.EST_FY + 1] - c[A_L] * est[lay.EST_ALPHA_X_RATE])
         obs = (mem[AM_DIST_X], mem[AM_DIST_Y], mem[AM_VEL_X], mem[AM_VEL_Y])
-        rates = (-est[EST_FX + 3] / c[A_G], -est[EST_FY + 3] / c[A_G])  # a' = -F'''/g
-        return ref[REF_FX + 5], ref[REF_FY + 5], rates, obs
+        rates = (-est[lay.EST_FX + 3] / c[A_G], -est[lay.EST_FY + 3] / c[A_G])  # a' = -F'''/g
+        return ref[lay.REF_FX + 5], ref[lay.REF_FY + 5], rates, obs
     l = c[A_L]
-    px, py = est[EST_FX] - l * est[EST_ALPHA_Y], est[EST_FY] - l * est[EST_ALPHA_X]
-    vx, vy = est[EST_FX + 1] - l * est[EST_ALPHA_Y_RATE], est[EST_FY + 1] - l * est[EST_ALPHA_X_RATE]
+    px, py = est[lay.EST_FX] - l * est[lay.EST_ALPHA_Y], est[lay.EST_FY] - l * est[lay.EST_ALPHA_X]
+    vx, vy = est[lay.EST_FX + 1] - l * est[lay.EST_ALPHA_Y_RATE], est[lay.EST_FY + 1] - l * est[lay.EST_ALPHA_X_RATE]
     an3 = c[A_G] / py_max(n[2], 0.3)
     obs = _observe_disturbance(c, mem, dt, (vx, vy), (an3 * n[0], an3 * n[1]))
-    ex[0], ex[1], ex[2] = px - ref[REF_FX], vx - ref[REF_FX + 1], an3 * n[0] + obs[0] - ref[REF_FX + 2]
-    ey[0], ey[1], ey[2] = py - ref[REF_FY], vy - ref[REF_FY + 1], an3 * n[1] + obs[1] - ref[REF_FY + 2]
-    return ref[REF_FX + 3], ref[REF_FY + 3], (0.0, 0.0), obs
+    ex[0], ex[1], ex[2] = px - ref[lay.REF_FX], vx - ref[lay.REF_FX + 1], an3 * n[0] + obs[0] - ref[lay.REF_FX + 2]
+    ey[0], ey[1], ey[2] = py - ref[lay.REF_FY], vy - ref[lay.REF_FY + 1], an3 * n[1] + obs[1] - ref[lay.REF_FY + 2]
+    return ref[lay.REF_FX + 3], ref[lay.REF_FY + 3], (0.0, 0.0), obs
 
 
 @inline_kernel
@@ -294,15 +277,15 @@ def attitude_step(
     expected torques N m body FLU, the attitude setpoint ZYX rad) into ``u_out`` (7,), ``mem`` (``AM_*``) updated;
     returns ``saturated`` (the thrust, the tilt rate or the tilt clipped)."""
     if not (estimate_is_finite(est) and math.isfinite(t) and _reference_is_finite(ref)):
-        return _hover(c, est[EST_PSI], u_out)
+        return _hover(c, est[lay.EST_PSI], u_out)
     smooth = c[A_SMOOTH] != 0.0
     dt = 0.0 if math.isnan(mem[AM_T]) else py_max(0.0, t - mem[AM_T])
-    phi, theta, psi = est[EST_PHI], est[EST_THETA], est[EST_PSI]
+    phi, theta, psi = est[lay.EST_PHI], est[lay.EST_THETA], est[lay.EST_PSI]
     sf, cf = math.sin(phi), math.cos(phi)
     st, ct = math.sin(theta), math.cos(theta)
     sp, cp = math.sin(psi), math.cos(psi)
     n = (sf * sp + cf * cp * st, cf * sp * st - cp * sf, cf * ct)  # the thrust direction, world
-    int_z = mem[AM_INT_Z] + (est[EST_Z] - ref[REF_Z]) * dt
+    int_z = mem[AM_INT_Z] + (est[lay.EST_Z] - ref[lay.REF_Z]) * dt
     thrust, sat_z = _height(c, int_z, est, ref, n, smooth)
 
     # horizontal: the commanded tilt rate per world axis, then the thrust direction setpoint
@@ -313,16 +296,16 @@ def attitude_step(
     vy_c = _axis(c, mem[AM_EY : AM_EY + 5], int_fy, ffy, smooth)
     ndx, ndy = vx_c / c[A_C] - rates[0], vy_c / c[A_C] - rates[1]
     if c[A_DRAG_TILT] > 0.0:  # the rate of the tilt that balances the drag: kt p*''
-        ndx = ndx + c[A_DRAG_TILT] * ref[REF_FX + 2]
-        ndy = ndy + c[A_DRAG_TILT] * ref[REF_FY + 2]
+        ndx = ndx + c[A_DRAG_TILT] * ref[lay.REF_FX + 2]
+        ndy = ndy + c[A_DRAG_TILT] * ref[lay.REF_FY + 2]
     ndx, ndy, nsx, nsy, nsz, sat_f = _thrust_direction_setpoint(c, n, ndx, ndy)
 
     # yaw: the commanded heading rate and the heading setpoint
-    e_psi = wrap_angle(psi - ref[REF_PSI])
+    e_psi = wrap_angle(psi - ref[lay.REF_PSI])
     int_psi = mem[AM_INT_PSI] + e_psi * dt
     s_psi = e_psi + c[A_K_PSI] * int_psi
     sw_psi = _switching(s_psi, c[A_EPS_PSI], smooth)
-    psid_c = ref[REF_PSI + 1] - c[A_K_PSI] * e_psi - c[A_RHO_PSI] * sw_psi - 0.5 * c[A_REACH_PSI] * s_psi
+    psid_c = ref[lay.REF_PSI + 1] - c[A_K_PSI] * e_psi - c[A_RHO_PSI] * sw_psi - 0.5 * c[A_REACH_PSI] * s_psi
     psi_sp = wrap_angle(psi + psid_c / c[A_W_PSI])
 
     # the setpoint as ZYX angles: Rz(-psi_sp) n_sp = [cos(phi) sin(theta), -sin(phi), cos(phi) cos(theta)]
@@ -335,9 +318,9 @@ def attitude_step(
     # the torques the rate loop is expected to apply for the small-angle body-rate command (for the filter)
     t1d = cp * ndx + sp * ndy  # heading-aligned tilt rate [theta', -phi']
     t2d = -sp * ndx + cp * ndy
-    w1 = est[EST_PHI_RATE] - st * est[EST_PSI_RATE]
-    w2 = cf * est[EST_THETA_RATE] + sf * ct * est[EST_PSI_RATE]
-    w3 = -sf * est[EST_THETA_RATE] + cf * ct * est[EST_PSI_RATE]
+    w1 = est[lay.EST_PHI_RATE] - st * est[lay.EST_PSI_RATE]
+    w2 = cf * est[lay.EST_THETA_RATE] + sf * ct * est[lay.EST_PSI_RATE]
+    w3 = -sf * est[lay.EST_THETA_RATE] + cf * ct * est[lay.EST_PSI_RATE]
     tau_phi = c[A_I] * c[A_B] * (-t2d - w1)
     tau_theta = c[A_I + 1] * c[A_B + 1] * (t1d - w2)
     tau_psi = c[A_I + 2] * c[A_B + 2] * (psid_c - w3)

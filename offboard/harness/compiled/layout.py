@@ -31,7 +31,9 @@ _PACKAGE = Path(__file__).resolve().parent
 #: helpers, the cable's projection); numba caches an inlined function inside its caller's file, so a change to one
 #: of these must drop the package's cache as a change to the package does
 SHARED_SOURCES = (
+    "estimators/filters/small_kf.py",
     "estimators/model/cable.py",
+    "estimators/model/flatness.py",
     "estimators/model/frames.py",
     "estimators/model/rotations.py",
     "offboard/control/smc.py",

@@ -19,22 +19,9 @@ from typing import Any
 import numpy as np
 
 from estimators.model import cable, rotations
+from offboard.harness.compiled import layout as lay
 from offboard.harness.compiled.layout import (
     ATT,
-    EST_ALPHA_X,
-    EST_ALPHA_X_RATE,
-    EST_ALPHA_Y,
-    EST_ALPHA_Y_RATE,
-    EST_FX,
-    EST_FY,
-    EST_PHI,
-    EST_PHI_RATE,
-    EST_PSI,
-    EST_PSI_RATE,
-    EST_THETA,
-    EST_THETA_RATE,
-    EST_Z,
-    EST_Z_RATE,
     LOAD,
     POS,
     contracted_kernel,
@@ -421,14 +408,14 @@ def truth_state_at(x: np.ndarray, sp: float, cp: float, l: float, g: float, c: f
     ny = theta * sp - phi * cp
     nxd = dtheta * cp + dphi * sp - dpsi * ny
     nyd = dtheta * sp - dphi * cp + dpsi * nx
-    out[EST_FX + 0], out[EST_FX + 1] = x[0] + l * ay, x[3] + l * ayd
-    out[EST_FX + 2], out[EST_FX + 3] = -g * ay, -g * ayd
-    out[EST_FX + 4], out[EST_FX + 5] = c * (ay + nx), c * (ayd + nxd)
-    out[EST_FY + 0], out[EST_FY + 1] = x[1] + l * ax, x[4] + l * axd
-    out[EST_FY + 2], out[EST_FY + 3] = -g * ax, -g * axd
-    out[EST_FY + 4], out[EST_FY + 5] = c * (ax + ny), c * (axd + nyd)
-    out[EST_Z], out[EST_Z_RATE] = x[2], x[5]
-    out[EST_PHI], out[EST_THETA], out[EST_PSI] = phi, theta, psi
-    out[EST_PHI_RATE], out[EST_THETA_RATE], out[EST_PSI_RATE] = dphi, dtheta, dpsi
-    out[EST_ALPHA_X], out[EST_ALPHA_Y] = ax, ay
-    out[EST_ALPHA_X_RATE], out[EST_ALPHA_Y_RATE] = axd, ayd
+    out[lay.EST_FX + 0], out[lay.EST_FX + 1] = x[0] + l * ay, x[3] + l * ayd
+    out[lay.EST_FX + 2], out[lay.EST_FX + 3] = -g * ay, -g * ayd
+    out[lay.EST_FX + 4], out[lay.EST_FX + 5] = c * (ay + nx), c * (ayd + nxd)
+    out[lay.EST_FY + 0], out[lay.EST_FY + 1] = x[1] + l * ax, x[4] + l * axd
+    out[lay.EST_FY + 2], out[lay.EST_FY + 3] = -g * ax, -g * axd
+    out[lay.EST_FY + 4], out[lay.EST_FY + 5] = c * (ax + ny), c * (axd + nyd)
+    out[lay.EST_Z], out[lay.EST_Z_RATE] = x[2], x[5]
+    out[lay.EST_PHI], out[lay.EST_THETA], out[lay.EST_PSI] = phi, theta, psi
+    out[lay.EST_PHI_RATE], out[lay.EST_THETA_RATE], out[lay.EST_PSI_RATE] = dphi, dtheta, dpsi
+    out[lay.EST_ALPHA_X], out[lay.EST_ALPHA_Y] = ax, ay
+    out[lay.EST_ALPHA_X_RATE], out[lay.EST_ALPHA_Y_RATE] = axd, ayd
