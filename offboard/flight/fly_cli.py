@@ -176,6 +176,7 @@ def build_loop_config(
         inject_nan=inject,
         telemetry_timeout_s=getattr(args, "telemetry_timeout", 10.0),
         start_timeout_s=getattr(args, "start_timeout", 10.0),
+        learn_hover=not getattr(args, "no_hover_learning", False),
     )
     try:
         cfg.validate()

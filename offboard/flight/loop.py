@@ -77,6 +77,7 @@ from offboard.control.tick import ActuatorLag
 from offboard.flight.attitude_mapping import inner_loop_of
 from offboard.flight.command_mapping import CommandMapper
 from offboard.flight.dropped_data import DroppedData
+from offboard.flight.hover_thrust_learning import HoverThrustLearner
 from offboard.flight.latency import LinkLatency
 from offboard.flight.link.connection import MavConnection
 from offboard.flight.link.management import Manager, custom_mode
@@ -213,6 +214,8 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
         self._signal: int | None = None
         #: position + heading (model frame) held with position setpoints before the controller takes over
         self.goal: tuple[float, float, float, float] | None = None
+        #: the hover throttle learned in flight, from the end of the take-off on (``hover_thrust_learning``)
+        self.hover_learner: HoverThrustLearner | None = None
         self._fd = _fileno(conn)
         self._inject = config.inject_nan
         self._t0_meas = math.inf
@@ -268,6 +271,7 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
                     # PX4's take-off altitude is AMSL: the take-off point's own altitude (the vehicle is on it)
                     amsl0 = self.alt_amsl if self.alt_amsl is not None and h0 < 0.3 else self.home_alt
                     self.mgr.takeoff(ref0.z[0], amsl0, self.height, idle=prime)
+            self._start_hover_learning()
             assert self.last_pos is not None
             oz = self.ground_z or 0.0
             origin = (self.last_pos.x - ref0.fx[0], self.last_pos.y - ref0.fy[0])
@@ -343,6 +347,7 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
             gain_scale=self.gain_scale,
             reference_duration_s=self.duration,
             staleness=self.staleness.summary(),
+            hover_learning=None if self.hover_learner is None else self.hover_learner.summary(),
         )
 
     _prev_sent: float | None = None

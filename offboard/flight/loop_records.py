@@ -118,6 +118,8 @@ class LoopConfig:
     start_timeout_s: float = 10.0
     #: the load's position error (estimate vs reference, m) that ends the flight (``offboard.flight.supervisor``)
     tracking_limit_m: float = 2.0
+    #: learn the hover throttle in flight and map thrust with it once trusted (``hover_thrust_learning``)
+    learn_hover: bool = True
     #: latency watchdog: one-way delay (telemetry age or setpoint way, s) that ends the flight (offboard.flight.latency)
     latency_limit_s: float = DEFAULT_LIMIT_S
     #: the filter's fusion horizon without link delay (s): the sensors' own latency budget
@@ -249,3 +251,5 @@ class FlightResult:
     reference_duration_s: float = math.inf
     #: the staleness limit and the link's gaps it was derived from (``offboard.flight.staleness.Staleness.summary``)
     staleness: dict[str, Any] = field(default_factory=dict)
+    #: the hover throttle learned in flight (``offboard.flight.hover_thrust_learning``; None before the take-off ended)
+    hover_learning: dict[str, Any] | None = None
