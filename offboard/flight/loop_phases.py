@@ -321,9 +321,12 @@ class FlightPhases:
 
     def _hover_throttle_known(self) -> bool:
         """The hold at the start waits for the hover throttle learned in flight to be trusted (PX4's filter: about
-        2 s of a settled estimate), within the hold's own time limit; True at once with ``--no-hover-learning``."""
+        2 s of a settled estimate), within the hold's own time limit; True at once with ``--no-hover-learning`` and
+        when nothing is being learned (an autopilot that does not stream ATTITUDE_TARGET: no thrust to learn from)."""
         learner = self.hover_learner
-        return not self.cfg.learn_hover or learner is None or learner.learned() is not None
+        if not self.cfg.learn_hover or learner is None or learner.fusions == 0:
+            return True
+        return learner.learned() is not None
 
     def _reread_hover_throttle(self) -> None:
         """After the take-off and the hold at the start, choose the hover throttle again: the one learned in flight
