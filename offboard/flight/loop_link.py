@@ -102,6 +102,8 @@ class LinkSupervision:
                 self.last_load = m
             elif isinstance(m, Imu) and self.hover_learner is not None:
                 self.hover_learner.on_imu(m, self.last_att)
+            if self.load_id is not None:
+                self.load_id.push(m)
             if self.estimator_ready:
                 self.estimator.push(m)
                 self.n_meas += 1
