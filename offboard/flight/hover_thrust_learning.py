@@ -11,6 +11,9 @@
   samples (ATTITUDE_TARGET comes at 50 Hz, the IMU at up to the loop's rate).
 
 One fusion per thrust sample, from the end of the take-off on (the loop calls :meth:`HoverThrustLearner.start`).
+From the start of control it also watches for a load that drops off (:meth:`HoverThrustLearner.watch_load`): the
+hover throttle of the vehicle alone is lower by about the load's share of the weight, and the filter, whose
+innovations a sudden change refuses until its variance is bumped, follows it within seconds.
 The learned value is trusted when the filter says so (variance below 0.001, test ratios passing, for 2 s); the loop
 then maps thrust with it at the start of control (``FlightPhases._reread_hover_throttle``) and keeps learning for
 the report (``metrics.json``'s ``config.hover_thrust_learning``).
@@ -23,6 +26,9 @@ from typing import Any
 
 from estimators.identification.hover_thrust import HoverThrustEstimator
 from estimators.model.measurements import Attitude, Imu, PositionVelocity
+
+#: how long (vehicle s) the learned hover throttle stays low before the load counts as lost
+LOST_AFTER_S = 1.0
 
 
 def vertical_specific_force(imu: Imu, att: Attitude) -> float:
@@ -57,11 +63,25 @@ class HoverThrustLearner:
         self.t_valid: float | None = None
         #: the estimate when control started (:meth:`mark_control_start`)
         self.at_control_start: dict[str, Any] | None = None
+        #: (hover throttle at the start of control, the load's share of it) while watching for a lost load
+        self._watch: tuple[float, float] | None = None
+        self._below_since: float | None = None
+        #: what was said when the load seemed lost (once), else None
+        self.load_lost: str | None = None
+        self.load_lost_told = False
 
     def start(self) -> None:
         """In the air: fuse from now on (what came before, on the ground or in the climb, is dropped)."""
         self.active = True
         self._acc_sum, self._acc_n, self._t_last = 0.0, 0, None
+
+    def watch_load(self, share: float) -> None:
+        """From the start of control, a load whose share of the hover thrust is ``share`` (``m / (M + m)``): a learned
+        hover throttle that falls below the one now by more than half of that share, for :data:`LOST_AFTER_S`, is a
+        load that dropped off (:attr:`load_lost`). Only with a trusted estimate to compare with."""
+        if self.ekf.valid and 0.0 < share < 1.0:
+            self._watch = (self.ekf.h, share)
+            self._below_since = None
 
     def stop(self) -> None:
         """The hand-over: no more fusions (a landing, with the load touching down first, breaks the model)."""
@@ -102,6 +122,17 @@ class HoverThrustLearner:
             self.t_first = t
         if ekf.valid and self.t_valid is None:
             self.t_valid = t
+        if self._watch is not None and self.load_lost is None:
+            h0, share = self._watch
+            if ekf.h < h0 * (1.0 - 0.5 * share):
+                self._below_since = t if self._below_since is None else self._below_since
+                if t - self._below_since >= LOST_AFTER_S:
+                    self.load_lost = (
+                        f"the hover throttle fell from {h0:.3f} to {ekf.h:.3f} (the load's share {share:.0%}): the "
+                        "load seems to have dropped off, or its line to have gone slack"
+                    )
+            else:
+                self._below_since = None
 
     def learned(self) -> tuple[float, float] | None:
         """(hover throttle, its 1-sigma) once the filter trusts its estimate, else None."""
@@ -126,6 +157,7 @@ class HoverThrustLearner:
             ),
             "accel_noise_var": e.acc_var if self.fusions else None,
             "at_control_start": self.at_control_start,
+            "load_lost": self.load_lost,
         }
 
 

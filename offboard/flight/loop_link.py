@@ -152,8 +152,12 @@ class LinkSupervision:
         """The autopilot's ATTITUDE_TARGET: its thrust to the hover throttle's learning (in the air); during control
         compared with the setpoints sent (``setpoint_echo``); a large mismatch is left for the next tick's watchdogs
         to end the flight (not raised inside a read)."""
-        if self.hover_learner is not None:
-            self.hover_learner.on_thrust(msg.time_boot_ms * 1e-3, msg.thrust, self.last_att, self.last_pos)
+        learner = self.hover_learner
+        if learner is not None:
+            learner.on_thrust(msg.time_boot_ms * 1e-3, msg.thrust, self.last_att, self.last_pos)
+            if learner.load_lost is not None and not learner.load_lost_told:
+                learner.load_lost_told = True
+                self.event("load_lost", learner.load_lost)
         if not self._echo_on or msg.type_mask & ATTITUDE_IGNORE or not all(map(math.isfinite, msg.q)):
             return
         said = self.echo.target(msg.time_boot_ms * 1e-3, msg.q)

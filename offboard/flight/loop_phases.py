@@ -346,6 +346,9 @@ class FlightPhases:
         if why is not None and learned is not None:
             self.mgr.warnings.append(why)
             self.event("hover_throttle", why)
+        v = self.vehicle
+        if learner is not None and v.mass_load > 0.0:
+            learner.watch_load(v.mass_load / (v.mass_vehicle + v.mass_load))
         before = self.mapper.autopilot.hover_thrust_norm
         if h is None or h == before:
             return
