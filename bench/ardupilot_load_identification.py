@@ -7,7 +7,8 @@ One SITL boot flies, one after the other (each a take-off to ``--height``, the m
 
 - **exact**: the bundled vehicle file (1.2 kg on 1 m);
 - **identified**: a vehicle file with 0.6 kg on 1.5 m (and no ``hover_throttle``: the file's is the loaded one),
-  ``--identify-load``.
+  ``--identify-load``;
+- **file** (only with ``--only``): the same wrong file without the identification, for what it buys.
 
 Prints the identified mass and cable length (with 1 sigma) against the truth, and per flight the move's figures on
 the DataFlash truth (``sim_bridge.sitl.ardupilot_dataflash.move_figures``: arrival, peak swing, residual swing), and
@@ -74,8 +75,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ArduPilot SITL ready after {sitl.ready_after_s:.0f} s; flights in {out}", flush=True)
         for name in [c for c in a.only.split(",") if c]:
             extra = list(a.slung_arg)
-            if name == "identified":  # the last --vehicle wins
-                extra += ["--vehicle", str(wrong_file(out, file_mass, file_line)), "--identify-load"]
+            if name in ("identified", "file"):  # the last --vehicle wins
+                extra += ["--vehicle", str(wrong_file(out, file_mass, file_line))]
+            if name == "identified":
+                extra.append("--identify-load")
             t0, t1, end = fly_slung(sitl, d, t, a.height, out / name, extra)
             r: dict[str, object] = {"end": end}
             if t0 is not None and t1 is not None and t1 > t0 + REST_S:
@@ -101,6 +104,8 @@ def main(argv: list[str] | None = None) -> int:
     elif ident:
         print(f"not identified: {ident.get('why')}")
     for name, r in results.items():
+        if name == "file" and "peak_rad" in r and "peak_rad" in results.get("exact", {}):
+            print(f"file / exact: peak {r['peak_rad'] / results['exact']['peak_rad']:.2f}x")
         if "peak_rad" in r:
             print(
                 f"{name}: arrival {r['arrival_s']:.2f} s, peak {r['peak_rad']:.4f} rad, residual "

@@ -10,6 +10,7 @@ buffers (``loop_link``).
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 from estimators.model.flatness import flat_constants
@@ -73,10 +74,31 @@ class LoadIdentificationPhase:
             self.event("load_identification", "no rebuild given: the law and the filter keep the vehicle file's load")
             return
         attitude = isinstance(self.params, smc_attitude.AttitudeParams)
-        params, factory = self.rebuild_for(vehicle, attitude)
-        if isinstance(params, smc_attitude.AttitudeParams):  # its gains follow the autopilot's loops, as in run()
-            tilt_max = min(params.tilt_max, self.mapper.config.max_tilt)
-            params = params.with_inner(inner_loop_of(self.mapper.autopilot), tilt_max=tilt_max)
+        rebuild = self.rebuild_for
+        box: dict[str, Any] = {}
+
+        def work() -> None:
+            try:
+                params, factory = rebuild(vehicle, attitude)
+                if isinstance(params, smc_attitude.AttitudeParams):  # its gains follow the autopilot's loops (run())
+                    tilt_max = min(params.tilt_max, self.mapper.config.max_tilt)
+                    params = params.with_inner(inner_loop_of(self.mapper.autopilot), tilt_max=tilt_max)
+                self._warm_up(self._now_vehicle(), factory=factory)
+                box["built"] = (params, factory)
+            except BaseException as exc:  # raised again in the loop's thread
+                box["error"] = exc
+
+        # the gains' design, the feasibility check and the new filter's warm-up take a second or more on a loaded
+        # machine: the hold's setpoints go on meanwhile (PX4 leaves offboard after COM_OF_LOSS_T without them: a
+        # PX4 HIL flight went to AUTO.LOITER, 2026-12-07)
+        worker = threading.Thread(target=work, name="slung-rebuild", daemon=True)
+        worker.start()
+        while worker.is_alive():
+            self.stream_hover()
+        worker.join()
+        if "error" in box:
+            raise box["error"]
+        params, factory = box["built"]
         old = self.mapper
         mapper: Any = type(old)(vehicle, old.config, old.autopilot)
         mapper.events = old.events

@@ -12,6 +12,7 @@ import math
 import time
 from collections import deque
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -84,14 +85,16 @@ class FlightPhases:
         self.estimator_ready = True
         self.t_vehicle = t0
 
-    def _warm_up(self, t0: float, max_step_ms: int = 100) -> None:
+    def _warm_up(self, t0: float, max_step_ms: int = 100, factory: Any = None) -> None:
         """Run a scratch filter (``estimator_factory``) through steps of 1..``max_step_ms`` ms (the lengths a
         real-time loop on the 1 ms vehicle clock produces), so that its per-step-length discretizations are
         computed before the flight, not in the first ticks (where each new length costs milliseconds and a slow
-        tick makes longer, new steps: a spiral). The scratch filter is discarded."""
-        if self.estimator_factory is None:
+        tick makes longer, new steps: a spiral). The scratch filter is discarded. ``factory``: another filter's
+        (the identified load's, ``loop_identify``) instead of the loop's."""
+        factory = factory or self.estimator_factory
+        if factory is None:
             return
-        scratch = self.estimator_factory()  # a new instance shares the filter's class-level discretization cache
+        scratch = factory()  # a new instance shares the filter's class-level discretization cache
         a, p = self.last_att, self.last_pos
         assert a is not None and p is not None
         scratch.initialize(t0, self._guess)
