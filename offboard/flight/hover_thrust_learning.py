@@ -68,6 +68,8 @@ class HoverThrustLearner:
         self._below_since: float | None = None
         #: what was said when the load seemed lost (once), else None
         self.load_lost: str | None = None
+        #: vehicle time (s) when it was told
+        self.t_lost: float | None = None
         self.load_lost_told = False
 
     def start(self) -> None:
@@ -77,8 +79,9 @@ class HoverThrustLearner:
 
     def watch_load(self, share: float) -> None:
         """From the start of control, a load whose share of the hover thrust is ``share`` (``m / (M + m)``): a learned
-        hover throttle that falls below the one now by more than half of that share, for :data:`LOST_AFTER_S`, is a
-        load that dropped off (:attr:`load_lost`). Only with a trusted estimate to compare with."""
+        hover throttle that falls below the one now by more than half of that share, or a vertical acceleration
+        above what the thrust explains by more than half of ``share g`` (low-passed, 1 s), for :data:`LOST_AFTER_S`,
+        is a load that dropped off (:attr:`load_lost`). Only with a trusted estimate to compare with."""
         if self.ekf.valid and 0.0 < share < 1.0:
             self._watch = (self.ekf.h, share)
             self._below_since = None
@@ -124,12 +127,17 @@ class HoverThrustLearner:
             self.t_valid = t
         if self._watch is not None and self.load_lost is None:
             h0, share = self._watch
-            if ekf.h < h0 * (1.0 - 0.5 * share):
+            # the estimate itself, or before it has moved (a trusted estimate follows a jump slowly: 10 s in
+            # ArduPilot SITL) the vertical acceleration it does not explain, low-passed: the vehicle alone needs
+            # about ``share`` less thrust, so the same thrust lifts it by about ``share g``
+            if ekf.h < h0 * (1.0 - 0.5 * share) or ekf.residual_lpf > 0.5 * share * self.g:
                 self._below_since = t if self._below_since is None else self._below_since
                 if t - self._below_since >= LOST_AFTER_S:
+                    self.t_lost = t
                     self.load_lost = (
-                        f"the hover throttle fell from {h0:.3f} to {ekf.h:.3f} (the load's share {share:.0%}): the "
-                        "load seems to have dropped off, or its line to have gone slack"
+                        f"the vehicle needs less thrust to hover: {ekf.residual_lpf:.2f} m/s^2 of climb the thrust "
+                        f"does not explain, hover throttle {h0:.3f} -> {ekf.h:.3f} (the load's share {share:.0%}): "
+                        "the load seems to have dropped off, or its line to have gone slack"
                     )
             else:
                 self._below_since = None
