@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from estimators.identification.load_id import LoadIdentification
+from estimators.model.measurements import Imu
 from estimators.model.vehicle import load_vehicle
 from offboard.flight.fly_cli import configure as fly_configure
 from offboard.flight.fly_cli import fly
@@ -65,6 +66,26 @@ def test_the_identified_load_flies_only_when_confident_else_the_priors_and_why()
     assert flown is None and block["attached"] is False and "no load identified" in block["why"]
     # nothing to identify from
     flown, block = decide(None, FILE, "too few records")
+    assert flown is None and "too few records" in block["why"]
+
+
+def test_too_few_records_are_said_and_the_priors_fly() -> None:
+    """The identification's own process (``python -m offboard.flight.load_identification``) answers, and nothing to
+    identify from is said, not raised."""
+    import time
+
+    lid = InFlightLoadId(FILE, 5.0)
+    lid.start()
+    lid.push(Imu(0.0, 0.0, 0.0, 9.8, 0.0, 0.0, 0.0))
+    assert not lid.ready() and lid.span_s() == 0.0
+    lid.run_in_background()
+    lid.push(Imu(1.0, 0.0, 0.0, 9.8, 0.0, 0.0, 0.0))  # no longer buffering
+    assert len(lid.imu) == 1
+    t_end = time.monotonic() + 60.0
+    while not lid.done() and time.monotonic() < t_end:
+        time.sleep(0.05)
+    assert lid.result is None and lid.error is not None and "too few records" in lid.error, lid.error
+    flown, block = decide(lid.result, FILE, lid.error)
     assert flown is None and "too few records" in block["why"]
 
 

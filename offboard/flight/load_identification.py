@@ -102,7 +102,9 @@ class InFlightLoadId:
         cmd = [sys.executable, "-m", "offboard.flight.load_identification", str(folder)]
         cmd += [repr(self.vehicle.mass_vehicle), repr(self.vehicle.gravity)]
         try:
-            self._proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            # stderr to a file: a pipe nobody reads until the end could fill and stop the child
+            with open(folder / "stderr.txt", "w", encoding="utf-8") as err:
+                self._proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, text=True)
         except OSError:
             self._proc = None
             self._thread = threading.Thread(target=self._run, name="slung-load-id", daemon=True)
@@ -114,8 +116,10 @@ class InFlightLoadId:
         if proc is not None:
             if proc.poll() is None:
                 return False
-            err = proc.stderr.read() if proc.stderr is not None else ""
-            answer = Path(self._tmp.name) / "answer.json" if self._tmp is not None else None
+            folder = Path(self._tmp.name) if self._tmp is not None else None
+            err_file = folder / "stderr.txt" if folder is not None else None
+            err = err_file.read_text(encoding="utf-8") if err_file is not None and err_file.is_file() else ""
+            answer = folder / "answer.json" if folder is not None else None
             if proc.returncode == 0 and answer is not None and answer.is_file():
                 data = json.loads(answer.read_text())
                 self.result = None if data is None else LoadIdentification(**data)
