@@ -2,19 +2,27 @@
 switching (``--switching`` / ``--epsilon``) resolved per law, the torque-level law's flight parameters (X-frame
 shared roll / pitch limit, per-loop boundary layers, the motors' lag designed in) and the attitude-level law's
 gain overrides from the vehicle file. What is resolved is written back into ``args`` so that ``metrics.json``
-records it and ``slung replay`` rebuilds the same law."""
+records it and ``slung replay`` rebuilds the same law. The nominal feasibility check of the reference for the
+vehicle (:func:`check_feasibility`), and the law and filter rebuilt for the load identified in flight
+(:func:`rebuild_for_vehicle`)."""
 
 from __future__ import annotations
 
 import argparse
 import copy
+import sys
 from dataclasses import dataclass
 from typing import Any
 
 from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle
+from offboard.cli_args import feedforward_tuning
 from offboard.control import smc, smc_attitude
 from offboard.control.boundary_layers import FLIGHT_LAYER_ERRORS
+from offboard.control.controllers.registry import drag_in_law
+from offboard.flight.command_mapping import CommandMapper, MappingConfig
+from offboard.flight.loop_records import LoopConfig
+from offboard.logs.runlog import Scenario
 
 
 def resolve_switching(args: argparse.Namespace, law: str, vehicle: Vehicle) -> smc.ControllerParams:
@@ -101,3 +109,79 @@ def vehicle_gain_overrides(vehicle: Vehicle) -> dict[str, float]:
         if name not in known:
             raise UserError(f"vehicle file: unknown gain {name!r} in [gains] (known: {', '.join(known)})")
     return dict(vehicle.gains)
+
+
+def rebuild_for_vehicle(
+    vehicle: Vehicle,
+    attitude: bool,
+    args: argparse.Namespace,
+    law: str,
+    mapping: MappingConfig,
+    scenario: Scenario,
+    duration: float,
+    mapper: CommandMapper,
+    cfg: LoopConfig,
+    load_sensor: bool,
+    tuning: Any,
+    quiet: bool,
+) -> tuple[Any, Any]:
+    """The law's parameters (attitude level when ``attitude``, else torque level) and the filter's factory for
+    ``vehicle`` (the load identified in flight), built as :func:`fly` builds them for the vehicle file, after the
+    nominal feasibility check for it (a UserError when the reference is beyond it, unless ``--force``: the flight
+    then ends in the autopilot's hold). ``args``' recorded switching and layers are the flown vehicle's."""
+    from estimators.filters.factory import make_estimator
+
+    torque_params = resolve_switching(args, law, vehicle)
+    args.feasibility_identified = check_feasibility(
+        scenario, duration, vehicle, torque_params, mapper, cfg, args, quiet
+    )
+    params: Any = torque_params
+    if attitude:
+        params = smc_attitude.AttitudeParams.for_vehicle(
+            vehicle,
+            overrides=vehicle_gain_overrides(vehicle),
+            switching=args.switching,
+            tilt_max=mapping.max_tilt,
+            drag_feedforward=drag_in_law(feedforward_tuning(args)),
+        )
+
+    def factory(delay_s: float = cfg.base_filter_delay_s) -> Any:
+        return make_estimator("kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate, delay_s=delay_s, tuning=tuning)
+
+    return params, factory
+
+
+def check_feasibility(
+    scenario: Scenario,
+    duration: float,
+    vehicle: Vehicle,
+    params: smc.ControllerParams,
+    mapper: CommandMapper,
+    cfg: LoopConfig,
+    args: argparse.Namespace,
+    quiet: bool,
+) -> dict[str, Any]:
+    """The nominal pre-flight check of the reference (``offboard.control.feasibility``), before anything connects: a
+    reference the vehicle cannot fly even in theory is a UserError unless ``--force``; warnings are printed.
+    Returns the summary recorded in ``metrics.json`` (``feasibility``)."""
+    from offboard.control.feasibility import FeasibilityLimits, check_reference
+
+    limits = FeasibilityLimits.from_config(params, mapper.config, cfg.swing_limit_rad)
+    res = check_reference(scenario.reference, duration, vehicle, limits)
+    force = bool(getattr(args, "force", False))
+    if not res.feasible and not force:
+        raise UserError(
+            f"{scenario.name}: {res.messages[0]} (nominal pre-flight check, docs/references.md; "
+            "--force flies it anyway)"
+        )
+    if not quiet:
+        for d in res.violations:  # only here with --force
+            print(f"pre-flight check: beyond the vehicle's limits (flown anyway, --force): {d.why}", file=sys.stderr)
+        for d in res.warnings:  # flyable, with an action the user can take (the text says which)
+            print(f"pre-flight check, note: {d.why}", file=sys.stderr)
+    return {
+        "feasible": res.feasible,
+        "forced": force and not res.feasible,
+        "messages": list(res.messages),
+        "peaks": {d.name: d.peak for d in res.demands},
+    }

@@ -260,6 +260,10 @@ def write_flight_outputs(
             "lockstep": cfg.lockstep,
             "hover_thrust_norm": result.autopilot.get("hover_thrust_norm"),
             "autopilot": result.autopilot,
+            # the hover throttle learned in flight: prior, estimate, 1 sigma, trusted (hover_thrust_learning)
+            "hover_thrust_learning": result.hover_learning,
+            # the load identified in flight: prior, identified, 1 sigma, used (load_identification)
+            "load_identification": result.load_identification,
             "origin_xy": list(result.origin),
             "ground_z": result.ground_z,
             "reference_start_s": t_ref0,

@@ -129,6 +129,23 @@ def add_flight_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None
         )
         p.add_argument("--no-takeoff", action="store_true", help="the vehicle is already flying at the start")
     p.add_argument(
+        "--identify-load",
+        type=positive_float,
+        nargs="?",
+        const=10.0,
+        default=None,
+        metavar="S",
+        help="identify the load's mass and cable length in an identification hover of S s (default 10, at most "
+        "10) at the reference's start, before control; the vehicle file's load is the prior, the identified one "
+        "flies when confident",
+    )
+    p.add_argument(
+        "--no-hover-learning",
+        action="store_true",
+        help="map thrust with the autopilot's (or the vehicle file's) hover throttle, not the one learned in flight "
+        "from the vertical acceleration (default: learned, once trusted)",
+    )
+    p.add_argument(
         "--stale-limit",
         type=positive_float,
         default=None,

@@ -29,13 +29,20 @@ from pathlib import Path
 from typing import Any
 
 from estimators.errors import UserError
-from estimators.model.vehicle import Vehicle, load_vehicle
+from estimators.model.vehicle import load_vehicle
 from offboard.cli_args import feedforward_tuning, positive_int
-from offboard.control import smc, smc_attitude
+from offboard.control import smc_attitude
 from offboard.control.controllers.registry import drag_in_law
 from offboard.flight.attitude_mapping import AttitudeLawMapper
 from offboard.flight.command_mapping import CommandMapper, MappingConfig
-from offboard.flight.flight_law import resolve_law, resolve_switching, torque_fallback, vehicle_gain_overrides
+from offboard.flight.flight_law import (
+    check_feasibility,
+    rebuild_for_vehicle,
+    resolve_law,
+    resolve_switching,
+    torque_fallback,
+    vehicle_gain_overrides,
+)
 from offboard.flight.flight_outputs import write_flight_outputs
 from offboard.flight.fly_args import (
     add_flight_arguments,
@@ -177,6 +184,8 @@ def build_loop_config(
         inject_nan=inject,
         telemetry_timeout_s=getattr(args, "telemetry_timeout", 10.0),
         start_timeout_s=getattr(args, "start_timeout", 10.0),
+        learn_hover=not getattr(args, "no_hover_learning", False),
+        identify_load_s=getattr(args, "identify_load", None) or 0.0,
     )
     try:
         cfg.validate()
@@ -284,6 +293,9 @@ def fly(
             on_reference_start=on_reference_start,
             controller=controller,
             torque_fallback=fallback.params if fallback is not None else None,
+            rebuild_for=lambda v, attitude: rebuild_for_vehicle(
+                v, attitude, args, law, mapping, scenario, duration, mapper, cfg, load_sensor, tuning, quiet
+            ),
         )
         if not quiet:
             print(
@@ -352,7 +364,7 @@ def fly(
         out_dir,
         result,
         scenario,
-        vehicle,
+        loop.vehicle,  # the identified load's when the flight flew it (--identify-load)
         args,
         cfg,
         info.flavour,
@@ -421,42 +433,6 @@ def flown_reference(reference: Any, duration: float, settle_s: float, args: argp
     stopping = StoppingReference(reference, duration)
     args.stop_after_s = duration if stopping.stop_s > 0.0 else None
     return stopping if stopping.stop_s > 0.0 else reference
-
-
-def check_feasibility(
-    scenario: Scenario,
-    duration: float,
-    vehicle: Vehicle,
-    params: smc.ControllerParams,
-    mapper: CommandMapper,
-    cfg: LoopConfig,
-    args: argparse.Namespace,
-    quiet: bool,
-) -> dict[str, Any]:
-    """The nominal pre-flight check of the reference (``offboard.control.feasibility``), before anything connects: a
-    reference the vehicle cannot fly even in theory is a UserError unless ``--force``; warnings are printed.
-    Returns the summary recorded in ``metrics.json`` (``feasibility``)."""
-    from offboard.control.feasibility import FeasibilityLimits, check_reference
-
-    limits = FeasibilityLimits.from_config(params, mapper.config, cfg.swing_limit_rad)
-    res = check_reference(scenario.reference, duration, vehicle, limits)
-    force = bool(getattr(args, "force", False))
-    if not res.feasible and not force:
-        raise UserError(
-            f"{scenario.name}: {res.messages[0]} (nominal pre-flight check, docs/references.md; "
-            "--force flies it anyway)"
-        )
-    if not quiet:
-        for d in res.violations:  # only here with --force
-            print(f"pre-flight check: beyond the vehicle's limits (flown anyway, --force): {d.why}", file=sys.stderr)
-        for d in res.warnings:  # flyable, with an action the user can take (the text says which)
-            print(f"pre-flight check, note: {d.why}", file=sys.stderr)
-    return {
-        "feasible": res.feasible,
-        "forced": force and not res.feasible,
-        "messages": list(res.messages),
-        "peaks": {d.name: d.peak for d in res.demands},
-    }
 
 
 def default_mask(flavour: str | None) -> str:

@@ -77,10 +77,13 @@ from offboard.control.tick import ActuatorLag
 from offboard.flight.attitude_mapping import inner_loop_of
 from offboard.flight.command_mapping import CommandMapper
 from offboard.flight.dropped_data import DroppedData
+from offboard.flight.hover_thrust_learning import HoverThrustLearner
 from offboard.flight.latency import LinkLatency
 from offboard.flight.link.connection import MavConnection
 from offboard.flight.link.management import Manager, custom_mode
 from offboard.flight.link.telemetry import TelemetryDecoder
+from offboard.flight.load_identification import InFlightLoadId
+from offboard.flight.loop_identify import LoadIdentificationPhase
 from offboard.flight.loop_link import FlightAbortError, LinkSupervision, _fileno
 from offboard.flight.loop_output import LoopOutputs
 from offboard.flight.loop_phases import FlightPhases, initial_guess
@@ -104,7 +107,7 @@ from offboard.flight.supervisor import Supervisor
 log = logging.getLogger("offboard.flight.loop")
 
 
-class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
+class FlightLoop(LinkSupervision, FlightPhases, LoadIdentificationPhase, TickLoop, LoopOutputs):
     """One flight: pre-flight, take-off, offboard control of ``reference`` for ``duration`` s, end.
 
     conn: an open :class:`MavConnection` (heartbeat already received); vehicle: the controller's nominal
@@ -131,6 +134,7 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
         on_reference_start: Callable[[float], None] | None = None,
         controller: Controller | None = None,
         torque_fallback: smc.ControllerParams | None = None,
+        rebuild_for: Callable[[Vehicle, bool], tuple[Any, Callable[..., Estimator]]] | None = None,
     ) -> None:
         config.validate()
         self.conn = conn
@@ -213,6 +217,13 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
         self._signal: int | None = None
         #: position + heading (model frame) held with position setpoints before the controller takes over
         self.goal: tuple[float, float, float, float] | None = None
+        #: the hover throttle learned in flight, from the end of the take-off on (``hover_thrust_learning``)
+        self.hover_learner: HoverThrustLearner | None = None
+        #: the load identified in flight (``LoadIdentificationPhase``; ``cfg.identify_load_s``), its metrics block,
+        #: and how to rebuild the law's parameters and the filter for another vehicle (``slung fly``'s)
+        self.load_id: InFlightLoadId | None = None
+        self.load_block: dict[str, Any] | None = None
+        self.rebuild_for = rebuild_for
         self._fd = _fileno(conn)
         self._inject = config.inject_nan
         self._t0_meas = math.inf
@@ -268,6 +279,7 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
                     # PX4's take-off altitude is AMSL: the take-off point's own altitude (the vehicle is on it)
                     amsl0 = self.alt_amsl if self.alt_amsl is not None and h0 < 0.3 else self.home_alt
                     self.mgr.takeoff(ref0.z[0], amsl0, self.height, idle=prime)
+            self._start_hover_learning()
             assert self.last_pos is not None
             oz = self.ground_z or 0.0
             origin = (self.last_pos.x - ref0.fx[0], self.last_pos.y - ref0.fy[0])
@@ -286,6 +298,7 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
                 raise UserError(f"the autopilot refused offboard control (result {res}): {said}")
             self.supervisor.expect(custom_mode(self.mgr.flavour, "offboard"), self._now_vehicle())
             self._approach()
+            self._identification_hover()
             self._reread_hover_throttle()
             self.goal = None
             self.event("phase", self.staleness.derive())
@@ -343,6 +356,8 @@ class FlightLoop(LinkSupervision, FlightPhases, TickLoop, LoopOutputs):
             gain_scale=self.gain_scale,
             reference_duration_s=self.duration,
             staleness=self.staleness.summary(),
+            hover_learning=None if self.hover_learner is None else self.hover_learner.summary(),
+            load_identification=self.load_block,
         )
 
     _prev_sent: float | None = None

@@ -14,7 +14,7 @@ import signal
 import time
 from typing import Any
 
-from estimators.model.measurements import Attitude, LoadAngle, PositionVelocity, ReportedAccuracy
+from estimators.model.measurements import Attitude, Imu, LoadAngle, PositionVelocity, ReportedAccuracy
 from offboard.flight.link.connection import MavConnection
 from offboard.flight.loop_records import LoopEvent
 from offboard.flight.setpoint_echo import ATTITUDE_IGNORE
@@ -100,6 +100,10 @@ class LinkSupervision:
                 self._z_samples.append(m.z)
             elif isinstance(m, LoadAngle):
                 self.last_load = m
+            elif isinstance(m, Imu) and self.hover_learner is not None:
+                self.hover_learner.on_imu(m, self.last_att)
+            if self.load_id is not None:
+                self.load_id.push(m)
             if self.estimator_ready:
                 self.estimator.push(m)
                 self.n_meas += 1
@@ -145,8 +149,15 @@ class LinkSupervision:
             raise FlightAbortError("latency", why)
 
     def _on_attitude_target(self, msg: Any) -> None:
-        """The autopilot's ATTITUDE_TARGET during control: compared with the setpoints sent (``setpoint_echo``); a
-        large mismatch is left for the next tick's watchdogs to end the flight (not raised inside a read)."""
+        """The autopilot's ATTITUDE_TARGET: its thrust to the hover throttle's learning (in the air); during control
+        compared with the setpoints sent (``setpoint_echo``); a large mismatch is left for the next tick's watchdogs
+        to end the flight (not raised inside a read)."""
+        learner = self.hover_learner
+        if learner is not None:
+            learner.on_thrust(msg.time_boot_ms * 1e-3, msg.thrust, self.last_att, self.last_pos)
+            if learner.load_lost is not None and not learner.load_lost_told:
+                learner.load_lost_told = True
+                self.event("load_lost", learner.load_lost)
         if not self._echo_on or msg.type_mask & ATTITUDE_IGNORE or not all(map(math.isfinite, msg.q)):
             return
         said = self.echo.target(msg.time_boot_ms * 1e-3, msg.q)

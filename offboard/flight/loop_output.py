@@ -104,6 +104,8 @@ class LoopOutputs:
         failsafe took over, or it disarmed): nothing is requested and nothing streamed."""
         self.supervisor.release()
         self._finishing = True
+        if self.hover_learner is not None:  # a landing (the load touching down) is no hover to learn from
+            self.hover_learner.stop()
         v = self.conn.vehicle
         if action == "none":
             mode = mode_name(self.mgr.flavour, v.custom_mode) if v is not None else "unknown"

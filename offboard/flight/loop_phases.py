@@ -12,6 +12,7 @@ import math
 import time
 from collections import deque
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -22,6 +23,7 @@ from estimators.model.vehicle import Vehicle
 from offboard.control import smc, smc_attitude
 from offboard.control.delay_margin import gain_scale, loop_delay
 from offboard.flight.command_mapping import CommandMapper
+from offboard.flight.hover_thrust_learning import HoverThrustLearner
 from offboard.flight.link.autopilot_model import choose_hover_throttle
 from offboard.flight.loop_link import FlightAbortError
 from offboard.flight.start_checks import offset_and_noise, settled, standard_error
@@ -83,14 +85,16 @@ class FlightPhases:
         self.estimator_ready = True
         self.t_vehicle = t0
 
-    def _warm_up(self, t0: float, max_step_ms: int = 100) -> None:
+    def _warm_up(self, t0: float, max_step_ms: int = 100, factory: Any = None) -> None:
         """Run a scratch filter (``estimator_factory``) through steps of 1..``max_step_ms`` ms (the lengths a
         real-time loop on the 1 ms vehicle clock produces), so that its per-step-length discretizations are
         computed before the flight, not in the first ticks (where each new length costs milliseconds and a slow
-        tick makes longer, new steps: a spiral). The scratch filter is discarded."""
-        if self.estimator_factory is None:
+        tick makes longer, new steps: a spiral). The scratch filter is discarded. ``factory``: another filter's
+        (the identified load's, ``loop_identify``) instead of the loop's."""
+        factory = factory or self.estimator_factory
+        if factory is None:
             return
-        scratch = self.estimator_factory()  # a new instance shares the filter's class-level discretization cache
+        scratch = factory()  # a new instance shares the filter's class-level discretization cache
         a, p = self.last_att, self.last_pos
         assert a is not None and p is not None
         scratch.initialize(t0, self._guess)
@@ -255,7 +259,8 @@ class FlightPhases:
         """Hold the position goal (the reference's start) until, averaged over the last ``settle_s`` of vehicle
         time, the vehicle is at it, at rest and its swing small, each within what the telemetry's own scatter
         lets one tell (:func:`settled`: two standard errors of the mean, estimated over the last ``noise_s``, at
-        least 1 cm, 3 cm/s, 0.02 rad);
+        least 1 cm, 3 cm/s, 0.02 rad), and the hover throttle learned in flight is trusted
+        (:meth:`_hover_throttle_known`);
         at most ``timeout_s`` (default ``start_timeout_s``), then control starts anyway and the event says how far
         off the vehicle was and how noisy its position.
 
@@ -291,7 +296,8 @@ class FlightPhases:
             for q, span in ((pos, settle_s), (swing, settle_s), (noise, noise_s)):
                 while q and q[0][0] < now - span:
                     q.popleft()
-            if fresh and settled(pos, swing, gx, gy, gz, now - start >= settle_s, ld is not None, noise):
+            at_start = fresh and settled(pos, swing, gx, gy, gz, now - start >= settle_s, ld is not None, noise)
+            if at_start and self._hover_throttle_known():
                 self.event("phase", f"at the start of the reference after {now - start:.2f} s")
                 return
             if now - start > timeout_s:
@@ -305,15 +311,53 @@ class FlightPhases:
             if self._signal is not None:
                 raise FlightAbortError("signal", f"signal {self._signal} before the flight", self.cfg.signal_action)
 
+    def _start_hover_learning(self) -> None:
+        """In the air (after the take-off, or at once with ``--no-takeoff``): learn the hover throttle from the
+        autopilot's reported thrust and the vertical acceleration (``offboard.flight.hover_thrust_learning``), from
+        the hover throttle the mapping flies with as the prior."""
+        ap = self.mapper.autopilot
+        prior = ap.hover_thrust_norm
+        if prior is None:
+            prior = self.vehicle.hover_throttle or self.vehicle.hover_thrust_normalized
+        self.hover_learner = HoverThrustLearner(self.mgr.flavour, self.vehicle.gravity, prior, ap.angle_boost)
+        self.hover_learner.start()
+
+    def _hover_throttle_known(self) -> bool:
+        """The hold at the start waits for the hover throttle learned in flight to be trusted (PX4's filter: about
+        2 s of a settled estimate), within the hold's own time limit; True at once with ``--no-hover-learning`` and
+        when nothing is being learned (an autopilot that does not stream ATTITUDE_TARGET: no thrust to learn from)."""
+        learner = self.hover_learner
+        if not self.cfg.learn_hover or learner is None or learner.fusions == 0:
+            return True
+        return learner.learned() is not None
+
     def _reread_hover_throttle(self) -> None:
-        """After the take-off and the hold at the start, read the hover throttle again (ArduPilot learns
-        MOT_THST_HOVER in flight, with the load on) and map thrust with it from now on."""
-        h = choose_hover_throttle(self.mgr.flavour, self.mgr.read_hover_throttle(), self.vehicle)[0]
+        """After the take-off and the hold at the start, choose the hover throttle again: the one learned in flight
+        when trusted (and ``LoopConfig.learn_hover``), else the autopilot's read again (ArduPilot learns
+        MOT_THST_HOVER under its own altitude controller) against the file's; map thrust with it from now on."""
+        learner = self.hover_learner
+        if learner is not None:
+            learner.mark_control_start()
+        learned = learner.learned() if learner is not None and self.cfg.learn_hover else None
+        if learner is not None and self.cfg.learn_hover and learned is None:
+            self.event(
+                "phase",
+                f"hover throttle not learned yet ({learner.fusions} fusions, estimate {learner.ekf.h:.3f} +- "
+                f"{learner.ekf.sigma:.3f}, not trusted): flying with the autopilot's or the vehicle file's",
+            )
+        h, why = choose_hover_throttle(self.mgr.flavour, self.mgr.read_hover_throttle(), self.vehicle, learned)
+        if why is not None and learned is not None:
+            self.mgr.warnings.append(why)
+            self.event("hover_throttle", why)
+        v = self.vehicle
+        if learner is not None and v.mass_load > 0.0:
+            learner.watch_load(v.mass_load / (v.mass_vehicle + v.mass_load))
         before = self.mapper.autopilot.hover_thrust_norm
         if h is None or h == before:
             return
         self.mapper.set_autopilot(replace(self.mapper.autopilot, hover_thrust_norm=h))
-        self.event("phase", f"hover throttle re-read in flight: {h:.3f} (before the take-off: {before})")
+        how = f"learned in flight ({learned[1]:.3f} 1-sigma)" if learned is not None else "re-read in flight"
+        self.event("phase", f"hover throttle {how}: {h:.3f} (before the take-off: {before})")
 
 
 def initial_guess(

@@ -118,6 +118,10 @@ class LoopConfig:
     start_timeout_s: float = 10.0
     #: the load's position error (estimate vs reference, m) that ends the flight (``offboard.flight.supervisor``)
     tracking_limit_m: float = 2.0
+    #: learn the hover throttle in flight and map thrust with it once trusted (``hover_thrust_learning``)
+    learn_hover: bool = True
+    #: the identification hover's length, s (0: no identification; at most 10 s: ``load_identification``)
+    identify_load_s: float = 0.0
     #: latency watchdog: one-way delay (telemetry age or setpoint way, s) that ends the flight (offboard.flight.latency)
     latency_limit_s: float = DEFAULT_LIMIT_S
     #: the filter's fusion horizon without link delay (s): the sensors' own latency budget
@@ -131,6 +135,8 @@ class LoopConfig:
         """ValueError for settings out of their documented range."""
         if not (RATE_MIN_HZ <= self.rate_hz <= RATE_MAX_HZ):
             raise ValueError(f"rate must be within {RATE_MIN_HZ:g}..{RATE_MAX_HZ:g} Hz, got {self.rate_hz:g}")
+        if not (0.0 <= self.identify_load_s <= 10.0):
+            raise ValueError(f"the identification hover must be within 0..10 s, got {self.identify_load_s:g}")
         if not (0.01 <= self.stale_s <= 5.0):
             raise ValueError(f"staleness limit must be within 0.01..5 s, got {self.stale_s:g}")
         if not (self.stale_s <= self.stale_ceiling_s <= 5.0):
@@ -249,3 +255,7 @@ class FlightResult:
     reference_duration_s: float = math.inf
     #: the staleness limit and the link's gaps it was derived from (``offboard.flight.staleness.Staleness.summary``)
     staleness: dict[str, Any] = field(default_factory=dict)
+    #: the hover throttle learned in flight (``offboard.flight.hover_thrust_learning``; None before the take-off ended)
+    hover_learning: dict[str, Any] | None = None
+    #: the load identified in flight (``offboard.flight.load_identification.decide``; None when not asked)
+    load_identification: dict[str, Any] | None = None

@@ -233,12 +233,14 @@ class InnerControl:
 
     def _learn_hover(self, x: Sequence[float], dt: float) -> None:
         """The autopilot's hover thrust learned in flight, every ``dt`` s: PX4's hover thrust estimator
-        (:meth:`_learn_hover_px4`); ArduPilot's MOT_THST_HOVER learning (MOT_HOVER_LEARN 2: learned and saved) in a
-        throttle-controlled mode."""
+        (:meth:`_learn_hover_px4`); ArduPilot's MOT_THST_HOVER learning (MOT_HOVER_LEARN 2: learned and saved; 0:
+        not learned) in a throttle-controlled mode."""
         if self.fl.is_px4:
             self._learn_hover_px4(x, dt)
             return
         if not self.armed or self.on_ground or self.mode.kind in ("stabilized", "acro"):
+            return
+        if not self._p("MOT_HOVER_LEARN"):  # 0: ArduPilot keeps MOT_THST_HOVER as set
             return
         tilt = math.acos(max(min(math.cos(x[6]) * math.cos(x[7]), 1.0), -1.0))
         if self.ap_hover.update(self.thrust_cmd / self.tmax, x[5], tilt, dt):

@@ -296,7 +296,7 @@ def ap_params(v: Vehicle) -> dict[str, Param]:
         "GUID_OPTIONS": Param(0, INT32, 0, 255, doc="bitmask; bit 3 (8): SET_ATTITUDE_TARGET thrust is throttle"),
         "ATC_ANGLE_BOOST": Param(1, INT8, 0, 1, doc="1: throttle / cos(tilt) angle boost"),
         "MOT_THST_HOVER": Param(hover, REAL32, 0.125, 0.6875, doc="hover throttle, 0..1, learned in flight"),
-        "MOT_HOVER_LEARN": Param(2, INT8, 0, 2, True, "hover throttle learning: 2 = learn and save"),
+        "MOT_HOVER_LEARN": Param(2, INT8, 0, 2, doc="hover throttle learning: 2 = learn and save, 0 = off"),
         "MOT_THST_EXPO": Param(0.65, REAL32, -1.0, 1.0, doc="thrust curve expo (thrust (1-e)u + e u^2 of actuator u)"),
         "PILOT_SPEED_UP": Param(250.0, REAL32, 50.0, 500.0, doc="pilot climb rate at full stick, cm/s"),
         "PILOT_SPEED_DN": Param(

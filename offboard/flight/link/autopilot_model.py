@@ -119,33 +119,48 @@ def autopilot_model_from_params(
     )
 
 
-def choose_hover_throttle(flavour: str, theirs: float | None, vehicle: Vehicle) -> tuple[float | None, str | None]:
+def choose_hover_throttle(
+    flavour: str, theirs: float | None, vehicle: Vehicle, learned: tuple[float, float] | None = None
+) -> tuple[float | None, str | None]:
     """The hover throttle (0..1) to map thrust with, from the autopilot's parameter ``theirs`` (PX4 MPC_THR_HOVER,
-    ArduPilot MOT_THST_HOVER; None when it did not answer) and the vehicle file, and a warning when they disagree.
+    ArduPilot MOT_THST_HOVER; None when it did not answer), the vehicle file and the hover throttle ``learned`` in
+    flight ((value, 1 sigma), trusted; ``offboard.flight.hover_thrust_learning``), and a warning when they disagree.
+
+    A learned value flies: it is this vehicle with this load, measured. The warning then names which of the
+    autopilot's parameter and the file's ``hover_throttle`` (both throttles, like the learned one) differ from it by
+    more than 10 %; a file without one is not compared (its thrust fraction is not a throttle).
 
     Like is compared with like: the autopilot's hover *throttle* with the file's ``hover_throttle`` (a throttle, with
-    this load); only a file without one is compared with its thrust fraction, total weight / max thrust, which is the
-    throttle on a linear thrust curve alone (ArduPilot's MOT_THST_EXPO 0.65 makes the SITL quad's loaded 0.51 a
-    thrust fraction of 0.348: the old warning compared 0.39 with 0.343 and fired on every flight).
+    this load). A file without one is not compared before the flight: its thrust fraction, total weight / max thrust,
+    is the throttle only on a linear thrust curve (ArduPilot's MOT_THST_EXPO 0.65 makes the SITL quad's loaded 0.51 a
+    thrust fraction of 0.348: the old warning compared 0.39 with 0.343 and fired on every flight); the value learned
+    in flight is compared instead.
 
-    Which one flies: the autopilot's, except on ArduPilot when the file gives a hover throttle more than 10 % away.
-    ArduPilot learns MOT_THST_HOVER only while its own altitude controller flies (MOT_HOVER_LEARN), so on the
-    ground, and after a take-off into attitude targets, it is the value of its last such flight, often without
-    this load (the SITL quad's 0.39 bare against 0.51 loaded: the vehicle sagged 13 cm at the start, issue 38);
+    Without a learned value, which one flies: the autopilot's, except on ArduPilot when the file gives a hover
+    throttle more than 10 % away. ArduPilot learns MOT_THST_HOVER only while its own altitude controller flies
+    (MOT_HOVER_LEARN), so on the ground, and after a take-off into attitude targets, it is the value of its last
+    such flight, often without this load (the SITL quad's 0.39 bare against 0.51 loaded: the vehicle sagged 13 cm
+    at the start, issue 38);
     PX4's MPC_THR_HOVER is what its own position controller flies with, so PX4's is kept."""
     mine = vehicle.hover_throttle
+    name = "MPC_THR_HOVER" if flavour == "px4" else "MOT_THST_HOVER"
+    if learned is not None and math.isfinite(learned[0]) and 0.0 < learned[0] < 1.0:
+        h, sigma = learned
+        off = [
+            f"{what} {value:.3f} ({(value / h - 1.0) * 100.0:+.0f} %)"
+            for what, value in ((name, theirs), ("the vehicle file's hover_throttle", mine))
+            if value is not None and math.isfinite(value) and abs(value - h) > 0.1 * h
+        ]
+        if not off:
+            return h, None
+        return h, (
+            f"hover throttle learned in flight {h:.3f} +- {sigma:.3f} differs by more than 10 % from "
+            f"{' and '.join(off)}: flying with the learned one; check the vehicle file's load and hover_throttle"
+        )
     if theirs is None or not (math.isfinite(theirs) and 0.0 < theirs < 1.0):
         return mine, None
-    name = "MPC_THR_HOVER" if flavour == "px4" else "MOT_THST_HOVER"
-    if mine is None:
-        frac = vehicle.hover_thrust_normalized
-        if abs(theirs - frac) <= 0.1 * frac:
-            return theirs, None
-        return theirs, (
-            f"{name} = {theirs:.3f} differs by more than 10 % from the vehicle file's thrust fraction at hover "
-            f"{frac:.3f} (total weight / max thrust; the throttle only on a linear thrust curve): give the file a "
-            "hover_throttle, or check its masses and motor_thrust_max"
-        )
+    if mine is None:  # nothing to compare a throttle with before the flight: the learned value is compared in flight
+        return theirs, None
     if abs(theirs - mine) <= 0.1 * mine:
         return theirs, None
     if flavour == "ardupilot":
