@@ -31,6 +31,7 @@ import numpy as np
 from estimators.filters.fusion import chi2_quantile
 from estimators.filters.measured_kf import MeasuredTuning, thrust_window
 from estimators.filters.measured_model import channel_floors, for_line
+from estimators.model.cable import cable_pull
 from estimators.model.flatness import flat_constants
 from estimators.model.vehicle import Vehicle
 from offboard.harness.compiled.layout import (
@@ -60,6 +61,8 @@ from offboard.harness.compiled.layout import (
 
 #: this module's kernels: no kernel here creates, keeps or returns an array (``layout.pure_kernel``)
 _kernel = pure_kernel
+#: the cable's pull as the accelerometer sees it: the scalar filter's own function, compiled
+_cable_pull = inline_kernel(cable_pull)
 
 # ---- the constants vector c (kf_constants) ------------------------------------------------------------------------
 # the nominal vehicle: inertia about body x, y (kg m^2), M (kg), g (m/s^2), l (m), m / M; flat constants l, g, c
@@ -118,7 +121,7 @@ F_U_TILT = F_U + 3  # commanded world tilt acceleration (x, y), rad/s^2
 F_Q_P = F_U_TILT + 2  # adapted position wander density per axis (3), m^2/s
 F_Y_MEAN = F_Q_P + 3  # running mean of each axis's position innovation (3), m
 F_T_IMU = F_Y_MEAN + 3  # sampling time of the acceleration input in force (s; -inf: none)
-F_FZ = F_T_IMU + 1  # low-passed body-vertical specific force, m/s^2
+F_FZ = F_T_IMU + 1  # low-passed vertical specific force g + u_z (world), m/s^2
 F_EY2 = F_FZ + 1  # per channel, the running mean of the squared innovation
 F_EHPH = F_EY2 + N_CHANNELS  # per channel, the running mean of the innovation's predicted variance
 # the heading estimate the last command was rotated with (rad; NaN: none) and its cosine and sine: the heading block
@@ -696,15 +699,22 @@ def _fuse_imu(c, f, n, t, z):
     hy = cf * ay - sf * az
     hz = -st * ax + ct * sf * ay + ct * cf * az
     g = c[C_G]
+    u0, u1 = cp * hx - sp * hy, sp * hx + cp * hy
     fz = f[F_FZ]
-    fz = fz + c[C_ACCEL_GAIN] * (minimum(maximum(az, 0.2 * g), 3.0 * g) - fz)
+    fz = fz + c[C_ACCEL_GAIN] * (minimum(maximum(hz, 0.2 * g), 3.0 * g) - fz)
     f[F_FZ] = fz
-    gain = c[C_M_OVER_M] * fz
     bx, by = cp * ax - sp * ay, sp * ax + cp * ay  # body-horizontal specific force, heading-rotated
-    # the tilt's own uncertainty adds to the noise
-    _row(c, f, n, S_ACC, SWING_X, gain, 0.0, 1.0, bx - gain * nx, CH_ACC, gain * gain * f[tx + B_P + P00])
-    _row(c, f, n, S_ACC, SWING_Y, gain, 0.0, 1.0, by - gain * ny, CH_ACC, gain * gain * f[ty + B_P + P00])
-    _acc_input(c, f, n, t, cp * hx - sp * hy, sp * hx + cp * hy, hz - g)
+    # the cable's pull linearized at the estimate, the scalar filter's rows in its order: the innovation z - h - e
+    # as the row's z - H x; the tilt's own uncertainty adds to the noise
+    mm, ln = c[C_M_OVER_M], c[C_L]
+    sx, sy = F_BLOCKS + BLOCK_SIZE * SWING_X, F_BLOCKS + BLOCK_SIZE * SWING_Y
+    a, ad = f[sx + B_X], f[sx + B_X + 1]
+    h, h_a, h_ad, h_n = _cable_pull(mm, ln, a, ad, f[sy + B_X], f[sy + B_X + 1], nx, u0, u1, fz)
+    _row(c, f, n, S_ACC, SWING_X, h_a, h_ad, 1.0, bx - h + h_a * a + h_ad * ad, CH_ACC, h_n * h_n * f[tx + B_P + P00])
+    a, ad = f[sy + B_X], f[sy + B_X + 1]
+    h, h_a, h_ad, h_n = _cable_pull(mm, ln, a, ad, f[sx + B_X], f[sx + B_X + 1], ny, u1, u0, fz)
+    _row(c, f, n, S_ACC, SWING_Y, h_a, h_ad, 1.0, by - h + h_a * a + h_ad * ad, CH_ACC, h_n * h_n * f[ty + B_P + P00])
+    _acc_input(c, f, n, t, u0, u1, hz - g)
 
 
 @_kernel
