@@ -21,7 +21,7 @@ against the tilt limit slung announced (its ``events.json``).
     flock /tmp/ardupilot-instance0.lock python bench/ardupilot_takeover.py [--line 5] [--move 5] [--hold 40]
         [--settle 2] [--slung-arg=--law --slung-arg=torque] [--out DIR]
 
-About 45 s of boot, 30 s of take-off and settling, then twice ``--hold`` (3 min in all on 5 m).
+About 45 s of boot, 30 s of take-off and settling, the 20 s hover, then twice ``--hold`` (5 min in all on 5 m).
 """
 
 from __future__ import annotations
