@@ -64,7 +64,7 @@ class MeasuredTuning(MeasurementNoise):
     gate_reopen: int = 10
     noise_adapt_rate: float = 0.01  # weight of one innovation in the running innovation statistics
     noise_ceiling: float = 30.0  # an adapted standard deviation stays below this multiple of the nominal one
-    accel_gain_filter: float = 0.1  # weight of a new sample in the low-pass of the vertical specific force
+    accel_gain_filter: float = 0.1  # weight of a new sample in the low-pass of the vertical specific force g + u_z
 
 
 #: the tuning with the external acceleration fed forward (``MeasuredTuning.external_feedforward``): the ``smc`` and

@@ -13,6 +13,7 @@ from collections import deque
 from estimators.filters.fusion import attitude_tilt
 from estimators.filters.measured_model import KIN, Block, Channel, Gyro, MeasuredTuning
 from estimators.filters.small_kf import apply_gain, update_one, update_row
+from estimators.model.cable import cable_pull
 from estimators.model.frames import wrap_angle
 from estimators.model.measurements import Attitude, Imu, LoadAngle, Measurement, PositionVelocity
 from estimators.model.vehicle import Vehicle
@@ -187,16 +188,21 @@ class MeasuredUpdates:
         hx = ct * ax + st * sf * ay + st * cf * az
         hy = cf * ay - sf * az
         hz = -st * ax + ct * sf * ay + ct * cf * az
-        ok = True
-        if self.has_load:
-            a = self.tuning.accel_gain_filter
-            self._fz += a * (min(max(az, 0.2 * self._g), 3.0 * self._g) - self._fz)
-            gain = self._m_over_M * self._fz
-            bx, by = cp * ax - sp * ay, sp * ax + cp * ay  # body-horizontal specific force, heading-rotated
-            hrow = [gain, 0.0, 1.0]  # the tilt's own uncertainty adds to the noise
-            ok &= self._row("acc", self._swing[0], hrow, bx - gain * nx, "acc", gain * gain * tx.p[0][0])
-            ok &= self._row("acc", self._swing[1], hrow, by - gain * ny, "acc", gain * gain * ty.p[0][0])
         u = [cp * hx - sp * hy, sp * hx + cp * hy, hz - self._g]
+        ok = True
+        if self.has_load:  # the cable's pull (estimators.model.cable.cable_pull), linearized at the estimate
+            # the vertical specific force g + u_z low-passed: the instantaneous one (the height loop's thrust
+            # steps, aliased into 50 Hz samples) doubled the estimate's error on a 30 m line (tests/test_long_lines)
+            self._fz += self.tuning.accel_gain_filter * (min(max(hz, 0.2 * self._g), 3.0 * self._g) - self._fz)
+            bx, by = cp * ax - sp * ay, sp * ax + cp * ay  # body-horizontal specific force, heading-rotated
+            mm, ln, fz = self._m_over_M, self._l, self._fz
+            sx, sy = self._swing
+            for b, o, n, z, tb, ua, uo in ((sx, sy, nx, bx, tx, u[0], u[1]), (sy, sx, ny, by, ty, u[1], u[0])):
+                x, xo = b.x, o.x
+                h, h_a, h_ad, h_n = cable_pull(mm, ln, x[0], x[1], xo[0], xo[1], n, ua, uo, fz)
+                # the innovation z - h - e as the row's z - H x; the tilt's own uncertainty adds to the noise
+                zr = z - h + h_a * x[0] + h_ad * x[1]
+                ok &= self._row("acc", b, [h_a, h_ad, 1.0], zr, "acc", h_n * h_n * tb.p[0][0])
         if self._imu_fresh(t):  # as an input, the sample must be plausible next to the previous one
             ch = self._ch["acc_in"]
             var = ch.value()

@@ -107,3 +107,44 @@ def swing_amplitude(alpha_x: float, alpha_y: float, alpha_x_rate: float, alpha_y
     criterion after a reference's end (``offboard.flight.loop``) and its report (``offboard.flight.flight_outputs``)."""
     a2 = alpha_x * alpha_x + alpha_y * alpha_y
     return math.sqrt(a2 + (alpha_x_rate * alpha_x_rate + alpha_y_rate * alpha_y_rate) / w2)
+
+
+def cable_pull(
+    m_over_M: float,
+    length: float,
+    a: float,
+    a_rate: float,
+    a_other: float,
+    a_other_rate: float,
+    tilt: float,
+    u_along: float,
+    u_other: float,
+    g_plus_uz: float,
+) -> tuple[float, float, float, float]:
+    """The cable's pull on the vehicle along one world axis as the accelerometer sees it, for a sensorless filter's
+    swing (an extended Kalman filter's measurement and its slopes): ``(h, dh/da, dh/da', dh/dn)``, m/s^2 per rad
+    (per rad/s for ``a'``). ``a``, ``a_rate``: the planar swing on this axis (``alpha_y`` for x, ``alpha_x`` for y)
+    and its rate (rad, rad/s); ``a_other``, ``a_other_rate``: the other axis's; ``tilt``: the vehicle's world tilt
+    on this axis (``n``, rad); ``u_along``, ``u_other``: the vehicle's measured acceleration on this and the other
+    world axis, ``g_plus_uz`` its vertical specific force ``g + u_z`` (m/s^2); ``m_over_M``: load over vehicle mass;
+    ``length``: the line (m).
+
+    The body-horizontal specific force, heading-rotated, is ``(T / M) sin(a + n)``: the cable, ``a`` from the
+    vertical, seen from a body tilted by ``n``. The tension is the pendulum's own, from the pivot's measured
+    acceleration ``u``: ``T / m = -(u + g e3) . r + l |r'|^2``, here ``(g + u_z) cos a cos a_o - u sin a - u_o sin a_o
+    + l (a'^2 + a_o'^2)``, and ``0`` on a slack line (then the pull says nothing of the swing). The gain used before,
+    ``m / M`` times the vertical specific force, holds in a steady hover only: a vehicle that accelerates towards
+    its load (10 m/s^2 while taking over a load swinging 24 deg) halves the tension while its thrust grows, and that
+    gain, 2.3 times too large, turned the swing estimate's sign (docs/estimation.md, the take-over). The slopes
+    include the tension's: accelerating, it is the tension, not the angle, that moves the pull most."""
+    sa, ca = math.sin(a), math.cos(a)
+    so, co = math.sin(a_other), math.cos(a_other)
+    spin = length * (a_rate * a_rate + a_other_rate * a_other_rate)  # the centripetal part, m/s^2
+    t_over_m = g_plus_uz * ca * co - u_along * sa - u_other * so + spin
+    if not t_over_m > 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    gain = m_over_M * t_over_m
+    s, c = math.sin(a + tilt), math.cos(a + tilt)
+    dgain_da = m_over_M * (-g_plus_uz * sa * co - u_along * ca)
+    dgain_dad = m_over_M * 2.0 * length * a_rate
+    return gain * s, gain * c + dgain_da * s, dgain_dad * s, gain * c

@@ -31,6 +31,7 @@ import math
 import numpy as np
 
 from estimators.model import flatness, rotations
+from estimators.model.cable import cable_pull
 from offboard.harness.compiled import layout as lay
 from offboard.harness.compiled.kf_layout import (
     B_P,
@@ -49,6 +50,7 @@ from offboard.harness.compiled.kf_layout import (
     C_K_C,
     C_K_G,
     C_K_L,
+    C_L,
     C_M_OVER_M,
     C_MASS_VEHICLE,
     C_N_THRUST,
@@ -146,6 +148,8 @@ from offboard.harness.compiled.layout import (
 #: tilt and its rate from the attitude
 _euler_rates = inline_kernel(rotations.euler_rates)
 _world_tilt = inline_kernel(flatness.world_tilt)
+#: the cable's pull as the accelerometer sees it: the scalar filter's own function, compiled
+_cable_pull = inline_kernel(cable_pull)
 
 #: this module's kernels: no kernel here creates, keeps or returns an array (``layout.pure_kernel``)
 _kernel = pure_kernel
@@ -337,15 +341,22 @@ def _fuse_imu(c, f, n, t, z):
     hy = cf * ay - sf * az
     hz = -st * ax + ct * sf * ay + ct * cf * az
     g = c[C_G]
+    u0, u1 = cp * hx - sp * hy, sp * hx + cp * hy
     fz = f[F_FZ]
-    fz = fz + c[C_ACCEL_GAIN] * (minimum(maximum(az, 0.2 * g), 3.0 * g) - fz)
+    fz = fz + c[C_ACCEL_GAIN] * (minimum(maximum(hz, 0.2 * g), 3.0 * g) - fz)
     f[F_FZ] = fz
-    gain = c[C_M_OVER_M] * fz
     bx, by = cp * ax - sp * ay, sp * ax + cp * ay  # body-horizontal specific force, heading-rotated
-    # the tilt's own uncertainty adds to the noise
-    _row(c, f, n, S_ACC, SWING_X, gain, 0.0, 1.0, bx - gain * nx, CH_ACC, gain * gain * f[tx + B_P + P00])
-    _row(c, f, n, S_ACC, SWING_Y, gain, 0.0, 1.0, by - gain * ny, CH_ACC, gain * gain * f[ty + B_P + P00])
-    _acc_input(c, f, n, t, cp * hx - sp * hy, sp * hx + cp * hy, hz - g)
+    # the cable's pull linearized at the estimate, the scalar filter's rows in its order: the innovation z - h - e
+    # as the row's z - H x; the tilt's own uncertainty adds to the noise
+    mm, ln = c[C_M_OVER_M], c[C_L]
+    sx, sy = F_BLOCKS + BLOCK_SIZE * SWING_X, F_BLOCKS + BLOCK_SIZE * SWING_Y
+    a, ad = f[sx + B_X], f[sx + B_X + 1]
+    h, h_a, h_ad, h_n = _cable_pull(mm, ln, a, ad, f[sy + B_X], f[sy + B_X + 1], nx, u0, u1, fz)
+    _row(c, f, n, S_ACC, SWING_X, h_a, h_ad, 1.0, bx - h + h_a * a + h_ad * ad, CH_ACC, h_n * h_n * f[tx + B_P + P00])
+    a, ad = f[sy + B_X], f[sy + B_X + 1]
+    h, h_a, h_ad, h_n = _cable_pull(mm, ln, a, ad, f[sx + B_X], f[sx + B_X + 1], ny, u1, u0, fz)
+    _row(c, f, n, S_ACC, SWING_Y, h_a, h_ad, 1.0, by - h + h_a * a + h_ad * ad, CH_ACC, h_n * h_n * f[ty + B_P + P00])
+    _acc_input(c, f, n, t, u0, u1, hz - g)
 
 
 @_kernel

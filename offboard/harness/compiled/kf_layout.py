@@ -77,7 +77,7 @@ F_U_TILT = F_U + 3  # commanded world tilt acceleration (x, y), rad/s^2
 F_Q_P = F_U_TILT + 2  # adapted position wander density per axis (3), m^2/s
 F_Y_MEAN = F_Q_P + 3  # running mean of each axis's position innovation (3), m
 F_T_IMU = F_Y_MEAN + 3  # sampling time of the acceleration input in force (s; -inf: none)
-F_FZ = F_T_IMU + 1  # low-passed body-vertical specific force, m/s^2
+F_FZ = F_T_IMU + 1  # low-passed vertical specific force g + u_z (world), m/s^2
 F_EY2 = F_FZ + 1  # per channel, the running mean of the squared innovation
 F_EHPH = F_EY2 + N_CHANNELS  # per channel, the running mean of the innovation's predicted variance
 # the heading estimate the last command was rotated with (rad; NaN: none) and its cosine and sine: the heading block
