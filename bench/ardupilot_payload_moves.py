@@ -80,8 +80,12 @@ def fly_slung(
         return None, None, f"refused: {last[0]}"
     m = json.loads(metrics.read_text())
     # the loop rate it achieved: a starved loop (a loaded machine) flies worse, and the table says so
-    ended = f"{m['flight']['ended_by']} ({m['loop']['rate_hz_achieved']:.0f} Hz)"
-    t = read_table(out / "fly" / "timeseries_live.slts")["t_vehicle"]
+    rate = m["loop"].get("rate_hz_achieved")  # None: the flight ended before control began
+    ended = m["flight"]["ended_by"] + (f" ({rate:.0f} Hz)" if rate is not None else " (no control)")
+    live = out / "fly" / "timeseries_live.slts"
+    if rate is None or not live.exists():
+        return None, None, ended
+    t = read_table(live)["t_vehicle"]
     return float(t[0]), float(t[-1]), ended
 
 
