@@ -31,7 +31,8 @@ LINE_M, MOVE_M, MOVE_S, HOVER_S = 10.0, 10.0, 4.0, 15.0
 #: from here on (s after control starts) the estimate must have found the swing's sign; measured 7 Dec 2026: no
 #: disagreement above 2 deg of true swing from 0.1 s on, in either flavour
 CONVERGED_S = 0.5
-#: the planar true swing (deg) above which the estimate's sign must be the truth's
+#: the planar true swing (deg) above which the estimate's sign must be the truth's (on all but 2 % of the ticks),
+#: and the most the estimate may point the wrong way
 SIGN_FROM_DEG = 3.0
 
 
@@ -90,8 +91,17 @@ def test_a_swinging_load_taken_over_is_damped_not_chased(
     assert end < 0.25 * swing[0], f"{swing[0]:.1f} deg at the take-over, still {end:.2f} deg at the end"
     for true, est in ((true_y, np.degrees(d["est_alpha_y"])), (true_x, np.degrees(d["est_alpha_x"]))):
         judged = (t >= CONVERGED_S) & (np.abs(true) > SIGN_FROM_DEG)
-        chased = judged & (np.sign(est) != np.sign(true))
+        # chasing is an estimate on the wrong side of the vertical by more than the swing it is judged on (main at
+        # 06f65b8: -36 deg against a true +4.5); an estimate that lags through zero for a few ticks is not (CI, quiet
+        # machine, 7 Dec 2026: 2-5 ticks of 3751 at 0.0-0.2 deg against a true 3.2 deg, the emulator not being
+        # deterministic from run to run), so that is bounded as a share
+        wrong_side = judged & (np.sign(est) != np.sign(true))
+        chased = wrong_side & (np.abs(est) > SIGN_FROM_DEG)
         assert not chased.any(), (
-            f"the estimate's sign is not the truth's at {t[chased][:5]} s: estimate {est[chased][:5]} deg, "
+            f"the estimate chases the swing at {t[chased][:5]} s: estimate {est[chased][:5]} deg, "
             f"truth {true[chased][:5]} deg"
+        )
+        assert wrong_side.sum() <= 0.02 * judged.sum(), (
+            f"the estimate's sign is not the truth's on {wrong_side.sum()} of {judged.sum()} ticks, e.g. at "
+            f"{t[wrong_side][:5]} s: estimate {est[wrong_side][:5]} deg, truth {true[wrong_side][:5]} deg"
         )
