@@ -111,6 +111,20 @@ def vehicle_gain_overrides(vehicle: Vehicle) -> dict[str, float]:
     return dict(vehicle.gains)
 
 
+def attitude_law_params(
+    vehicle: Vehicle, args: argparse.Namespace, mapping: MappingConfig
+) -> smc_attitude.AttitudeParams:
+    """The attitude-level law's parameters for ``vehicle`` as ``slung fly`` flies it: the file's ``[gains]``, the
+    command line's switching and feed-forward, the mapping's tilt limit (rad)."""
+    return smc_attitude.AttitudeParams.for_vehicle(
+        vehicle,
+        overrides=vehicle_gain_overrides(vehicle),
+        switching=args.switching,
+        tilt_max=mapping.max_tilt,
+        drag_feedforward=drag_in_law(feedforward_tuning(args)),
+    )
+
+
 def rebuild_for_vehicle(
     vehicle: Vehicle,
     attitude: bool,
@@ -137,13 +151,7 @@ def rebuild_for_vehicle(
     )
     params: Any = torque_params
     if attitude:
-        params = smc_attitude.AttitudeParams.for_vehicle(
-            vehicle,
-            overrides=vehicle_gain_overrides(vehicle),
-            switching=args.switching,
-            tilt_max=mapping.max_tilt,
-            drag_feedforward=drag_in_law(feedforward_tuning(args)),
-        )
+        params = attitude_law_params(vehicle, args, mapping)
 
     def factory(delay_s: float = cfg.base_filter_delay_s) -> Any:
         return make_estimator("kf", vehicle, load_sensor=load_sensor, rate_hz=args.rate, delay_s=delay_s, tuning=tuning)

@@ -31,17 +31,16 @@ from typing import Any
 from estimators.errors import UserError
 from estimators.model.vehicle import load_vehicle
 from offboard.cli_args import feedforward_tuning, positive_int
-from offboard.control import smc_attitude
 from offboard.control.controllers.registry import drag_in_law
 from offboard.flight.attitude_mapping import AttitudeLawMapper
 from offboard.flight.command_mapping import CommandMapper, MappingConfig
 from offboard.flight.flight_law import (
+    attitude_law_params,
     check_feasibility,
     rebuild_for_vehicle,
     resolve_law,
     resolve_switching,
     torque_fallback,
-    vehicle_gain_overrides,
 )
 from offboard.flight.flight_outputs import write_flight_outputs
 from offboard.flight.fly_args import (
@@ -233,13 +232,7 @@ def fly(
     mapping = MappingConfig(output=args.output, mask=args.mask or default_mask(None))
     params: Any = torque_params
     if law == "attitude":
-        params = smc_attitude.AttitudeParams.for_vehicle(
-            vehicle,
-            overrides=vehicle_gain_overrides(vehicle),
-            switching=args.switching,
-            tilt_max=mapping.max_tilt,
-            drag_feedforward=drag_in_law(feedforward_tuning(args)),
-        )
+        params = attitude_law_params(vehicle, args, mapping)
         mapper: CommandMapper = AttitudeLawMapper(vehicle, mapping, AutopilotModel())
     else:
         mapper = CommandMapper(vehicle, mapping, AutopilotModel())
