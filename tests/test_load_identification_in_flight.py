@@ -11,6 +11,7 @@ completes on the identified vehicle."""
 from __future__ import annotations
 
 import argparse
+import json
 import re
 from pathlib import Path
 
@@ -19,6 +20,7 @@ import pytest
 from estimators.identification.load_id import LoadIdentification
 from estimators.model.measurements import Imu
 from estimators.model.vehicle import load_vehicle
+from offboard.cli import main
 from offboard.flight.fly_cli import configure as fly_configure
 from offboard.flight.fly_cli import fly
 from offboard.flight.load_identification import InFlightLoadId, decide
@@ -134,3 +136,15 @@ def test_a_wrong_vehicle_file_is_corrected_in_flight(tmp_path: Path) -> None:
     assert abs(got["mass_kg"] - 1.2) < 3.0 * sigma["mass_kg"] and 0.0 < sigma["mass_kg"] < 0.12, (got, sigma)
     assert abs(got["cable_m"] - 1.0) < 3.0 * sigma["cable_m"] and 0.0 < sigma["cable_m"] < 0.1, (got, sigma)
     assert block["flown"] == block["identified"]  # the loop's vehicle is the identified one
+    # the replay of this run rebuilds the law and the filter on the identified load the flight flew, not on the
+    # vehicle file's (it would otherwise compare two different pendulums with the live ticks): bit for bit
+    code = main(["replay", str(tmp_path / "f" / "flight.tlog"), "--out", str(tmp_path / "r")])
+    r = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert code == 0
+    ticks = m["loop"]["ticks"]
+    agree = r["live_agreement"]
+    assert agree["setpoint_identical"] == agree["estimate_identical"] == ticks > 100, agree
+    load = r["load"]  # metrics.json's load: what flew, the in-flight identification's uncertainty and prior
+    assert load["attached"] and load["source"].startswith("identified in flight"), load
+    assert load["mass_kg"] == pytest.approx(got["mass_kg"]) and load["cable_m"] == pytest.approx(got["cable_m"])
+    assert load["uncertainty"] == sigma and load["prior"] == {"mass_kg": 0.6, "cable_m": 1.5}

@@ -317,6 +317,11 @@ def run_replay(args: argparse.Namespace) -> tuple[int, dict[str, Any], Path]:
         print(f"report: {out_dir.resolve()}")
         return EXIT_NOT_REPLAYABLE, metrics, out_dir
     result.metrics["replayed"] = True
+    if "load" not in result.metrics and meta:  # slung's own run: the load its law and filter flew
+        from offboard.logs.replay_load import live_run_load
+
+        cfg = meta.get("config") if isinstance(meta.get("config"), dict) else {}
+        result.metrics["load"] = live_run_load(config.vehicle, cfg.get("load_identification"))
     span = result.metrics["estimation"].get("vehicle_time_span_s")
     log_s = (span[1] - span[0]) if span else 0.0
     result.metrics["speed"] = {"wall_s": wall, "log_s": log_s, "x_realtime": log_s / wall if wall > 0 else None}

@@ -81,4 +81,28 @@ def load_block(ident: LoadIdentification | None, vehicle: Vehicle, has_sensor: b
     return {**ident.as_dict(), "prior": prior, "cable_angle_sensor": has_sensor}
 
 
-__all__ = ["EDGE_S", "identify_from_log", "load_block", "segment_stretches"]
+def live_run_load(vehicle: Vehicle, identification: Any) -> dict[str, Any]:
+    """metrics.json's ``load`` for the replay of a run of slung's own (its tick log replayed bit for bit): the load
+    the live run's law and filter were built on, as the run recorded it (``vehicle``: the vehicle file's load, or
+    the one identified in flight, ``identification``: the run's ``config.load_identification``), not identified
+    again from the log: the replay rebuilds the live run's filter, and a second identification would make it another
+    pendulum than the one that flew."""
+    attached = vehicle.mass_load > 0.0
+    block: dict[str, Any] = {
+        "attached": attached,
+        "mass_kg": vehicle.mass_load if attached else None,
+        "cable_m": vehicle.cable_length if attached else None,
+        "uncertainty": None,
+        "source": "the vehicle file the run recorded",
+    }
+    if isinstance(identification, dict):
+        block["in_flight_identification"] = identification
+        block["prior"] = identification.get("prior")
+        if identification.get("used"):
+            block["uncertainty"] = identification.get("uncertainty")
+            block["source"] = "identified in flight (slung fly --identify-load)"
+    block["estimator_load"] = {"mass_kg": vehicle.mass_load, "cable_m": vehicle.cable_length}
+    return block
+
+
+__all__ = ["EDGE_S", "identify_from_log", "live_run_load", "load_block", "segment_stretches"]
