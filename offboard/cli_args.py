@@ -92,6 +92,37 @@ def add_controller_arguments(p: argparse.ArgumentParser, flight: bool = False) -
     )
 
 
+#: the controller names that mean the command's own sliding-mode law, configured by its own options (``--law``,
+#: ``--switching``, ...): ``smc`` (the torque level; ``slung fly``: the level ``--law`` picks) and, for the flight
+#: commands and replay, ``smc-attitude`` (``--law attitude``)
+OWN_LAWS = ("smc", "smc-attitude")
+
+
+def add_controller_choice(p: argparse.ArgumentParser, default: str) -> None:
+    """``--controller NAME`` of ``sim``, ``fly``, ``demo`` and ``replay``: a controller of
+    ``offboard.control.controllers.registry`` (checked when the command runs: :func:`chosen_controller`);
+    ``default``: what the command flies without it, for the help text."""
+    p.add_argument(
+        "--controller",
+        metavar="NAME",
+        default=None,
+        help="controller by name, as slung compare / sweep take them (smc, smc-attitude, cascade, lqr, zv, zvd, "
+        f"swing-feedback, or one registered; docs/architecture.md); default: {default}",
+    )
+
+
+def chosen_controller(args: argparse.Namespace) -> str | None:
+    """The ``--controller`` name (None: not given); UserError for a name the registry does not know."""
+    name = getattr(args, "controller", None)
+    if name is None:
+        return None
+    from offboard.control.controllers import registry
+
+    if name not in registry.CONTROLLERS:
+        raise UserError(f"unknown controller {name!r} (known: {', '.join(registry.CONTROLLERS)})")
+    return str(name)
+
+
 def add_feedforward_argument(p: argparse.ArgumentParser) -> None:
     """``--external-feedforward`` of the commands that build the measured-input filter (``sim``, ``fly``, ``demo``)."""
     p.add_argument(
