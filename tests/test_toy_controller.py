@@ -21,24 +21,14 @@ from offboard.flight.fly_cli import fly
 from offboard.harness.demo_cli import EmulatorThread, free_udp_port
 from offboard.logs.timeseries_file import read_table
 
-#: a gentle 2 m move along x at 1 m height in 4 s, from rest at t = 1 s to rest at t = 5 s (slung fly refuses a
-#: reference that swings the load near its watchdog: a toy PD is no swing-damping law)
+#: a gentle 2 m move along x at 1 m height in 4 s, from rest at t = 1 s to rest at t = 5 s (gentle: the toy PD is no
+#: swing-damping law, and slung fly's watchdog ends a flight at 0.8 rad of swing)
 MOVE = """\
-[[waypoint]]
-t = 0.0
-x = 0.0
-y = 0.0
-z = 1.0
-[[waypoint]]
-t = 1.0
-x = 0.0
-y = 0.0
-z = 1.0
-[[waypoint]]
-t = 5.0
-x = 2.0
-y = 0.0
-z = 1.0
+waypoint = [
+    {t = 0.0, x = 0.0, y = 0.0, z = 1.0},
+    {t = 1.0, x = 0.0, y = 0.0, z = 1.0},
+    {t = 5.0, x = 2.0, y = 0.0, z = 1.0},
+]
 """
 
 
