@@ -152,6 +152,8 @@ def run_cli(args: argparse.Namespace) -> dict[str, Any]:
     _print_feasibility(scenario, vehicle, params)
     name = chosen_controller(args) or "smc"
     controller = None
+    if name != "smc" and (args.layers or args.motor_lag):
+        raise UserError(f"--layers and --motor-lag configure the sliding-mode law smc: not with --controller {name}")
     if name != "smc":  # a controller of the registry, flown as slung compare flies it
         from offboard.harness.compare import controller_as_flown
 
