@@ -1,9 +1,11 @@
-"""``slung fly``: fly a real or emulated vehicle over MAVLink with the Kalman filter and the sliding-mode controller.
+"""``slung fly``: fly a real or emulated vehicle over MAVLink with the Kalman filter and the sliding-mode controller
+(or another controller of the registry, ``--controller``).
 
 Usage (the main options; ``slung fly --help`` and ``docs/usage-fly-demo.md`` list every one)::
 
     slung fly --connect URL (--scenario NAME | --trajectory FILE) [--duration S] [--output attitude|actuator]
               [--mask attitude|attitude+rates|rates] [--rate HZ] [--vehicle FILE|NAME] [--law auto|attitude|torque]
+              [--controller NAME]
               [--backend pymavlink|mavsdk] [--lockstep] [--no-takeoff] [--external-feedforward]
               [--stale-floor S] [--stale-ceiling S] [--stale-limit S] [--swing-limit RAD]
               [--settle S] [--settle-swing RAD]
