@@ -84,11 +84,17 @@ def add_controller_arguments(p: argparse.ArgumentParser, flight: bool = False) -
             else "smoothing width of eq. (92) for --switching smooth (default: 1, the paper's)"
         ),
     )
+    add_vehicle_argument(p)
+
+
+def add_vehicle_argument(p: argparse.ArgumentParser, default: str = "the paper's Table 1") -> None:
+    """``--vehicle FILE|NAME`` of the commands that build a vehicle (``sim``, ``fly``, ``demo``, ``replay``,
+    ``compare``); ``default``: what the command uses without it, for the help text."""
     p.add_argument(
         "--vehicle",
         metavar="FILE|NAME",
         help="vehicle description: a TOML file, or a shipped one (paper-table1, px4-sih, px4-hil-load, "
-        "ardupilot-sitl-quad); default: the paper's Table 1",
+        f"ardupilot-sitl-quad); default: {default}",
     )
 
 

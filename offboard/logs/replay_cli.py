@@ -19,7 +19,14 @@ from typing import Any
 
 from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle, VehicleFileError, load_vehicle, vehicle_from_toml
-from offboard.cli_args import OWN_LAWS, add_controller_choice, add_no_figures_argument, chosen_controller, finite_float
+from offboard.cli_args import (
+    OWN_LAWS,
+    add_controller_choice,
+    add_no_figures_argument,
+    add_vehicle_argument,
+    chosen_controller,
+    finite_float,
+)
 from offboard.control.options import Switching, values
 from offboard.logs.timeseries_file import LIVE_LOG_NAME, table_path, write_table
 
@@ -43,12 +50,7 @@ def configure(p: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="flight log: telemetry (.tlog), PX4 ULog (.ulg) or ArduPilot DataFlash (.bin)",
     )
-    p.add_argument(
-        "--vehicle",
-        metavar="FILE",
-        help="vehicle description (TOML file or shipped name; default: the vehicle the run recorded in the "
-        "metrics.json beside the log, else the paper's Table 1)",
-    )
+    add_vehicle_argument(p, "the vehicle the run recorded in the metrics.json beside the log, else the paper's Table 1")
     p.add_argument(
         "--from",
         dest="t_from",
