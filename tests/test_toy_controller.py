@@ -116,6 +116,11 @@ def test_a_controller_that_cannot_fly_the_output_is_refused_in_one_line(
     assert main([*base, "--controller", "no-such-law"]) == 2
     err = capsys.readouterr().err.strip()
     assert "unknown controller 'no-such-law'" in err and NAME in err, err
+    assert main([*base, "--controller", NAME, "--law", "torque"]) == 2  # --law is the sliding-mode law's
+    assert "not with --controller toy-pd" in capsys.readouterr().err
+    sim = ["sim", "--scenario", "hover", "--controller", NAME, "--motor-lag", "--out", str(tmp_path / "s")]
+    assert main(sim) == 2  # --motor-lag configures the sliding-mode law only
+    assert "not with --controller toy-pd" in capsys.readouterr().err
 
 
 def test_compare_and_sweep_fly_the_toy(tmp_path: Path) -> None:
