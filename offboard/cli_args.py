@@ -84,12 +84,49 @@ def add_controller_arguments(p: argparse.ArgumentParser, flight: bool = False) -
             else "smoothing width of eq. (92) for --switching smooth (default: 1, the paper's)"
         ),
     )
+    add_vehicle_argument(p)
+
+
+def add_vehicle_argument(p: argparse.ArgumentParser, default: str = "the paper's Table 1") -> None:
+    """``--vehicle FILE|NAME`` of the commands that build a vehicle (``sim``, ``fly``, ``demo``, ``replay``,
+    ``compare``); ``default``: what the command uses without it, for the help text."""
     p.add_argument(
         "--vehicle",
         metavar="FILE|NAME",
         help="vehicle description: a TOML file, or a shipped one (paper-table1, px4-sih, px4-hil-load, "
-        "ardupilot-sitl-quad); default: the paper's Table 1",
+        f"ardupilot-sitl-quad); default: {default}",
     )
+
+
+#: the controller names that mean the command's own sliding-mode law, configured by its own options (``--law``,
+#: ``--switching``, ...): ``smc`` (the torque level; ``slung fly``: the level ``--law`` picks) and, for the flight
+#: commands and replay, ``smc-attitude`` (``--law attitude``)
+OWN_LAWS = ("smc", "smc-attitude")
+
+
+def add_controller_choice(p: argparse.ArgumentParser, default: str) -> None:
+    """``--controller NAME`` of ``sim``, ``fly``, ``demo`` and ``replay``: a controller of
+    ``offboard.control.controllers.registry`` (checked when the command runs: :func:`chosen_controller`);
+    ``default``: what the command flies without it, for the help text."""
+    p.add_argument(
+        "--controller",
+        metavar="NAME",
+        default=None,
+        help="controller by name, as slung compare / sweep take them (smc, smc-attitude, cascade, lqr, zv, zvd, "
+        f"swing-feedback, or one registered; docs/architecture.md); default: {default}",
+    )
+
+
+def chosen_controller(args: argparse.Namespace) -> str | None:
+    """The ``--controller`` name (None: not given); UserError for a name the registry does not know."""
+    name = getattr(args, "controller", None)
+    if name is None:
+        return None
+    from offboard.control.controllers import registry
+
+    if name not in registry.CONTROLLERS:
+        raise UserError(f"unknown controller {name!r} (known: {', '.join(registry.CONTROLLERS)})")
+    return str(name)
 
 
 def add_feedforward_argument(p: argparse.ArgumentParser) -> None:

@@ -373,6 +373,8 @@ def test_titles_say_what_ran(sim_specs, demo_piped) -> None:
     assert flight, "the demo drew no figure"
     for s in flight:
         assert "slung demo: paper scenario, px4 emulator" in s.title and "kf estimator" in s.title, s.title
+        # the controller that flew (config.controller): --law auto flies the torque-level law on the paper vehicle
+        assert "smc controller" in s.title, s.title
 
 
 @pytest.mark.slow

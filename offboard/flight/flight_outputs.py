@@ -231,6 +231,8 @@ def write_flight_outputs(
     m.setdefault("config", {})
     m["config"].update(
         {
+            # the controller that flew (its registry name; smc / smc-attitude: the sliding-mode law of "law")
+            "controller": getattr(args, "controller_flown", None),
             "law": getattr(args, "law", None),
             "switching": args.switching,
             "epsilon": (

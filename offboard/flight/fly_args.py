@@ -10,6 +10,7 @@ from typing import Any
 from estimators.errors import UserError
 from offboard.cli_args import (
     add_controller_arguments,
+    add_controller_choice,
     add_feedforward_argument,
     add_no_figures_argument,
     non_negative_float,
@@ -81,6 +82,7 @@ def add_flight_arguments(p: argparse.ArgumentParser, demo: bool = False) -> None
     # --switching / --epsilon resolved per law in fly() (flight_law.resolve_switching): smooth switching for both laws,
     # each loop's boundary layer from its gains unless --epsilon gives the paper's one width for all (torque law)
     add_controller_arguments(p, flight=True)
+    add_controller_choice(p, "the sliding-mode law at the level --law picks (smc-attitude: --law attitude)")
     add_feedforward_argument(p)
     p.add_argument(
         "--law",

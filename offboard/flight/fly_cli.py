@@ -1,9 +1,11 @@
-"""``slung fly``: fly a real or emulated vehicle over MAVLink with the Kalman filter and the sliding-mode controller.
+"""``slung fly``: fly a real or emulated vehicle over MAVLink with the Kalman filter and the sliding-mode controller
+(or another controller of the registry, ``--controller``).
 
 Usage (the main options; ``slung fly --help`` and ``docs/usage-fly-demo.md`` list every one)::
 
     slung fly --connect URL (--scenario NAME | --trajectory FILE) [--duration S] [--output attitude|actuator]
               [--mask attitude|attitude+rates|rates] [--rate HZ] [--vehicle FILE|NAME] [--law auto|attitude|torque]
+              [--controller NAME]
               [--backend pymavlink|mavsdk] [--lockstep] [--no-takeoff] [--external-feedforward]
               [--stale-floor S] [--stale-ceiling S] [--stale-limit S] [--swing-limit RAD]
               [--settle S] [--settle-swing RAD]
@@ -30,7 +32,7 @@ from typing import Any
 
 from estimators.errors import UserError
 from estimators.model.vehicle import load_vehicle
-from offboard.cli_args import feedforward_tuning, positive_int
+from offboard.cli_args import chosen_controller, feedforward_tuning, positive_int
 from offboard.control.controllers.registry import drag_in_law
 from offboard.flight.attitude_mapping import AttitudeLawMapper
 from offboard.flight.command_mapping import CommandMapper, MappingConfig
@@ -220,6 +222,8 @@ def fly(
     check_reference_bounds(scenario, duration)
     line = vehicle.cable_length if vehicle.mass_load > 0.0 else 0.0  # no load: no swing to allow for
     cfg = build_loop_config(args, lockstep, takeoff, inject, line)
+    if controller is None:  # --controller NAME: a registered controller, or the sliding-mode law's level
+        controller = controller_from_args(args, vehicle)
     asked_law = getattr(args, "law", "auto")
     args.law = resolve_law(asked_law, args.output, vehicle)
     law = args.law
@@ -293,8 +297,8 @@ def fly(
         if not quiet:
             print(
                 f"slung fly: {info.flavour} (system {info.system}) on {args.connect}; {scenario.name}, "
-                f"{duration:g} s, {law}-level law, {args.output} output at {args.rate:g} Hz"
-                + (" (lockstep)" if lockstep else ""),
+                f"{duration:g} s, controller {loop.controller.name} ({law} level), {args.output} output at "
+                f"{args.rate:g} Hz" + (" (lockstep)" if lockstep else ""),
                 file=sys.stderr,
                 flush=True,
             )
@@ -311,6 +315,7 @@ def fly(
             raise
         if fallback is not None and loop.flew_torque_fallback:
             vars(args).update(fallback.record)  # metrics.json and slung replay: the law that flew
+        args.controller_flown = loop.controller.name  # metrics.json and slung replay: the controller that flew
         if prio_warning:
             result.warnings.append(prio_warning)
         if not result.load_sensor:
@@ -396,6 +401,36 @@ def fly(
             print(f"warning: {w}")
         print(f"report: {out_dir.resolve()}")
     return m, out_dir
+
+
+def controller_from_args(args: argparse.Namespace, vehicle: Any) -> Any:
+    """The controller ``--controller`` names for the flight (None: the sliding-mode law ``--law`` picks, the
+    default; ``smc-attitude`` sets ``--law attitude``), as it flies over ``--output``
+    (``offboard.control.controllers.flight_output.as_flown``; ``args.law`` set to the level that maps its commands).
+    UserError for an unknown name, a controller that cannot fly ``--output``, or one given with a ``--law`` that
+    is not its own."""
+    name = chosen_controller(args)
+    asked_law = getattr(args, "law", "auto")
+    if name in (None, "smc"):
+        return None
+    if name == "smc-attitude":
+        if asked_law == "torque":
+            raise UserError("--controller smc-attitude is the attitude-level law: not with --law torque")
+        args.law = "attitude"
+        return None
+    if asked_law not in (None, "auto"):
+        raise UserError(f"--law picks the sliding-mode law's level: not with --controller {name}")
+    from offboard.control.controllers.flight_output import registered_as_flown
+
+    flown, args.law = registered_as_flown(
+        name,
+        vehicle,
+        args.output,
+        switching=getattr(args, "switching", None) or "smooth",
+        epsilon=getattr(args, "epsilon", None) or 1.0,
+        drag_feedforward=drag_in_law(feedforward_tuning(args)),
+    )
+    return flown
 
 
 def write_refusal_events(out_dir: Path, loop: FlightLoop, exc: UserError) -> None:

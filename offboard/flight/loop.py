@@ -265,7 +265,7 @@ class FlightLoop(LinkSupervision, FlightPhases, LoadIdentificationPhase, TickLoo
                 robust = smc_attitude.robust_gains_exist(self.vehicle, inner, self.params.tilt_max)
                 if not robust and self._torque_fallback is not None and self._controller_given is None:
                     self._fly_torque_fallback(inner)
-                elif not robust:
+                elif not robust and self._controller_given is None:  # (another controller: not this law's)
                     self.mgr.warnings.append(
                         f"attitude-level law: no gains stay stable with this autopilot's attitude loop "
                         f"({inner.attitude_bandwidth:g} 1/s) off by 2x for this load's swing "

@@ -41,7 +41,7 @@ from estimators.model.vehicle import Vehicle
 from offboard.control import reference_patterns as patterns
 from offboard.control import smc
 from offboard.control.controllers import registry
-from offboard.control.controllers.protocol import Controller
+from offboard.control.controllers.protocol import Controller, level_of
 from offboard.control.scenarios import make_scenario
 from offboard.logs.runlog import COL, PlantSetup, Scenario, SimConfig, SimLog
 
@@ -276,8 +276,8 @@ def controller_as_flown(
     P, rate PID, allocator and motors (``sim_bridge.inner.px4_attitude_path``, actuators ``px4-attitude``) in
     place of the config's motors (ideal or the mixer), as ``slung fly`` flies it through an autopilot, and designed
     as ``slung fly`` designs it for those loops: for what it would read from their parameters
-    (``emulated_autopilot``), within the tilt its mapping clips to (the path clips the same). The other
-    controllers keep the config."""
+    (``emulated_autopilot``), within the tilt its mapping clips to (the path clips the same). Any other
+    attitude-level controller (``protocol.level_of``) flies through the same loops; the others keep the config."""
     inner = tilt_max = None
     if controller == "smc-attitude" and config.actuators in ("ideal", "mixer"):
         from offboard.flight.command_mapping import MappingConfig
@@ -296,6 +296,8 @@ def controller_as_flown(
         tilt_max=tilt_max,
         drag_feedforward=drag_ff,
     )
+    if level_of(law) == "attitude" and config.actuators in ("ideal", "mixer"):  # any attitude-level controller
+        config = replace(config, actuators="px4-attitude")
     return config, law
 
 

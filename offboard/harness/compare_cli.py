@@ -13,12 +13,14 @@ from typing import Any
 
 from estimators.errors import UserError
 from estimators.model.vehicle import load_vehicle
+from offboard.cli_args import add_seed_argument, add_vehicle_argument
 from offboard.control.controllers import registry
 from offboard.control.options import Switching, values
 from offboard.harness import compare, compare_mavlink
 from offboard.harness.demo_cli import add_flavor_argument
 from offboard.logs.runlog import SimConfig
 from offboard.outputs import prepare_output_dir, write_atomic
+from sim_bridge.plant.sensors import PRESETS as SENSOR_PRESETS
 
 
 def configure(p: argparse.ArgumentParser) -> None:
@@ -30,7 +32,7 @@ def configure(p: argparse.ArgumentParser) -> None:
         metavar="LIST",
         help=f"comma-separated controllers (default: all: {', '.join(registry.CONTROLLERS)})",
     )
-    p.add_argument("--vehicle", metavar="FILE", help="vehicle description (TOML); default: the paper's Table 1")
+    add_vehicle_argument(p)
     p.add_argument(
         "--estimator",
         choices=("truth", "kf"),
@@ -38,11 +40,11 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="kf (default): the Kalman filter on simulated sensors; truth: every controller sees the true state",
     )
     p.add_argument(
-        "--sensors", choices=("ideal", "px4-typical", "px4-fast"), default="px4-typical", help="sensor models for kf"
+        "--sensors", choices=SENSOR_PRESETS, default="px4-typical", help="sensor models for kf (default px4-typical)"
     )
     p.add_argument("--no-load-sensor", action="store_true", help="no cable-angle sensor (swing from the accelerometer)")
     p.add_argument("--switching", choices=values(Switching), default="sign", help="switching of the smc law")
-    p.add_argument("--seed", type=int, default=0, help="seed of sensor noise and disturbances")
+    add_seed_argument(p)
     p.add_argument(
         "--mavlink",
         action="store_true",

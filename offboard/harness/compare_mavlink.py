@@ -7,11 +7,12 @@ case's: take-off, approach to the reference's start, the case flown under offboa
 sliding-mode laws fly as ``slung fly`` flies them (``smc``: ``--law torque``; ``smc-attitude``: ``--law
 attitude``, gains following the autopilot's loops). The position-level baselines (``cascade``, ``zv``, ``zvd``,
 ``swing-feedback``) send what a stock autopilot's position controller hands its attitude controller: the attitude
-setpoint and the collective thrust of their own position / velocity loops (:class:`AttitudeSetpointOutput`), the
-autopilot's attitude and rate loops doing the rest; ``lqr``, a torque-level law, is mapped to attitude setpoints
-as the torque-level ``smc``. The figures are computed on the emulator's true plant state, in the case's own
-coordinates (the flight's reference is shifted to where the vehicle was at the start of control; the shift is
-taken out again).
+setpoint and the collective thrust of their own position / velocity loops, the autopilot's attitude and rate loops
+doing the rest; ``lqr``, a torque-level law, is mapped to attitude setpoints as the torque-level ``smc``; any other
+controller by the level it commands at, as ``slung fly --controller`` flies it
+(``offboard.control.controllers.flight_output``). The figures are computed on the emulator's true plant state,
+in the case's own coordinates (the flight's reference is shifted to where the vehicle was at the start of control;
+the shift is taken out again).
 
 Cases the emulator cannot reproduce are refused: the released swing of ``hover`` (the vehicle takes off with the
 load hanging) and the ``gust`` (the emulator knows the paper's disturbances only).
@@ -20,16 +21,12 @@ load hanging) and the ``gust`` (the emulator knows the paper's disturbances only
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 from estimators.errors import UserError
-from estimators.model.control_state import ControlState
 from estimators.model.vehicle import Vehicle
 from offboard.control.controllers import registry
-from offboard.control.controllers.protocol import Controller
-from offboard.control.smc import Ref
-from offboard.control.smc_attitude import AttitudeCommand
+from offboard.control.controllers.flight_output import as_flown
 from offboard.harness import compare
 from offboard.logs.runlog import COL, SimLog
 
@@ -37,37 +34,6 @@ from offboard.logs.runlog import COL, SimLog
 MAVLINK_SCENARIOS: dict[str, str] = {"rest-to-rest": "none", "paper": "paper"}
 #: the horizontal position columns of a flight's log, shifted back by the flight's origin
 _HORIZONTAL = (("x", "y"), ("load_x", "load_y"), ("Fx", "Fy"), ("Fx_ref", "Fy_ref"))
-
-
-class AttitudeSetpointOutput:
-    """A position-level baseline whose output is its attitude setpoint and thrust (an
-    :class:`~offboard.control.smc_attitude.AttitudeCommand`, for ``AttitudeLawMapper``) instead of its own rate loop's
-    torques: the torques stay in the command (logged), the setpoint carries roll, pitch and heading (rad) and, as
-    feed-forward, the reference's yaw rate (rad/s)."""
-
-    def __init__(self, base: Controller) -> None:
-        self.base = base
-        self.name = base.name
-        cascade = getattr(base, "cascade", base)  # the shaped cascades wrap one
-        self._inner = cascade.inner
-
-    def reset(self) -> None:
-        self.base.reset()
-
-    def step(self, t: float, est: ControlState, ref_fx: Ref, ref_fy: Ref, ref_z: Ref, ref_psi: Ref) -> AttitudeCommand:
-        cmd = self.base.step(t, est, ref_fx, ref_fy, ref_z, ref_psi)
-        sp = self._inner.attitude_sp
-        valid = cmd.valid and sp is not None
-        phi, theta, psi = sp if valid else (0.0, 0.0, ref_psi[0] if math.isfinite(ref_psi[0]) else 0.0)
-        r_ff = ref_psi[1] if valid and len(ref_psi) > 1 else 0.0
-        return AttitudeCommand(*cmd[:9], valid, phi, theta, psi, 0.0, 0.0, r_ff)
-
-    def memory_fields(self) -> tuple[float, float, float, float]:
-        return self.base.memory_fields()
-
-
-#: baselines that fly as their attitude setpoint (see the module docstring)
-_ATTITUDE_OUTPUT = ("cascade", "zv", "zvd", "swing-feedback")
 
 
 def check_scenario(name: str) -> None:
@@ -128,10 +94,8 @@ def run_case(
         args.law, args.switching, args.epsilon = "torque", switching, epsilon
     elif controller == "smc-attitude":
         args.law = "attitude"  # its own default switching (smooth), as slung fly --law attitude
-    elif controller in _ATTITUDE_OUTPUT:
-        args.law, law = "attitude", AttitudeSetpointOutput(registry.make(controller, vehicle))
     else:
-        args.law, law = "torque", registry.make(controller, vehicle)
+        law, args.law = as_flown(registry.make(controller, vehicle), args.output)
     logs: list[SimLog] = []
     m, _, _ = run_demo(args, quiet=True, scenario=case.scenario, controller=law, on_log=logs.append)
     if not logs:
@@ -147,4 +111,4 @@ def run_case(
     return compare.CaseResult(controller, case, figures, log)
 
 
-__all__ = ["MAVLINK_SCENARIOS", "AttitudeSetpointOutput", "check_scenario", "demo_args", "run_case"]
+__all__ = ["MAVLINK_SCENARIOS", "check_scenario", "demo_args", "run_case"]

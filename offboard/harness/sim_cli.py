@@ -17,9 +17,11 @@ from estimators.errors import UserError
 from estimators.model.vehicle import load_vehicle
 from offboard.cli_args import (
     add_controller_arguments,
+    add_controller_choice,
     add_feedforward_argument,
     add_no_figures_argument,
     add_seed_argument,
+    chosen_controller,
     feedforward_tuning,
     positive_float,
 )
@@ -43,6 +45,11 @@ def configure(p: argparse.ArgumentParser) -> None:
         help="trajectory file (TOML, docs/references.md): the vehicle starts at rest at its start, no disturbance",
     )
     add_controller_arguments(p)
+    add_controller_choice(
+        p,
+        "smc, the paper's torque-level law as --switching / --epsilon / --layers / --motor-lag set it (any other "
+        "as slung compare flies it)",
+    )
     p.add_argument("--duration", type=positive_float, metavar="S", help="simulated time in s (default: the scenario's)")
     add_seed_argument(p)
     p.add_argument(
@@ -143,16 +150,25 @@ def run_cli(args: argparse.Namespace) -> dict[str, Any]:
         actuation_lag_s=vehicle.motor_time_constant if args.motor_lag else 0.0,
     )
     _print_feasibility(scenario, vehicle, params)
+    name = chosen_controller(args) or "smc"
+    controller = None
+    if name != "smc" and (args.layers or args.motor_lag):
+        raise UserError(f"--layers and --motor-lag configure the sliding-mode law smc: not with --controller {name}")
+    if name != "smc":  # a controller of the registry, flown as slung compare flies it
+        from offboard.harness.compare import controller_as_flown
+
+        config, controller = controller_as_flown(name, vehicle, config, switching=args.switching, epsilon=args.epsilon)
     progress = _progress_printer() if sys.stderr.isatty() else None
-    log = sim_mod.run(scenario, vehicle, params, config, progress=progress, tuning=tuning)
+    log = sim_mod.run(scenario, vehicle, params, config, progress=progress, tuning=tuning, controller=controller)
     m = metrics_mod.compute(log)
+    m["config"]["controller"] = name
     m["config"]["external_feedforward"] = tuning is not None
     m["config"]["switching"] = args.switching
     m["config"]["epsilon"] = args.epsilon if args.switching == "smooth" and not args.layers else None
     m["config"]["layer_errors"] = list(layer_errors) if layer_errors else None
     m["config"]["actuation_lag_s"] = params.actuation_lag_s or None
     report.write_report(log, m, out_dir, figures=not args.no_figures, command="sim")
-    print(f"scenario {scenario.name}: {scenario.description}")
+    print(f"scenario {scenario.name}: {scenario.description}; controller {name}")
     print(metrics_mod.format_table(m))
     print(f"report: {out_dir.resolve()}")
     return m

@@ -418,10 +418,10 @@ def run_chunk(config_dict: dict[str, Any], controller: str, runs: list[int]) -> 
 
 
 def warm_up(config: SweepConfig, controllers: list[str]) -> float:
-    """Load (or, the first time on a machine, compile: about a minute) the compiled engine's kernels for the
-    ``controllers`` it flies, in this process, by flying run 0 of each over a 0.2 s move (1.4 s of flight); returns
-    the wall seconds it took. Done before the Dask workers start, so that they load the kernels from numba's cache
-    instead of each compiling them again, and so that a first sweep says why it waits."""
+    """Load (or, the first time on a machine, compile: about 2 minutes, said on stderr) the compiled engine's kernels
+    for the ``controllers`` it flies, in this process, by flying run 0 of each over a 0.2 s move (1.4 s of flight);
+    returns the wall seconds it took. Done before the Dask workers start, so that they load the kernels from numba's
+    cache instead of each compiling them again, and so that a first sweep says why it waits."""
     import time
 
     compiled = [c for c in controllers if engine_for(config, c) == "compiled"]

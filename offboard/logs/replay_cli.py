@@ -19,7 +19,14 @@ from typing import Any
 
 from estimators.errors import UserError
 from estimators.model.vehicle import Vehicle, VehicleFileError, load_vehicle, vehicle_from_toml
-from offboard.cli_args import add_no_figures_argument, finite_float
+from offboard.cli_args import (
+    OWN_LAWS,
+    add_controller_choice,
+    add_no_figures_argument,
+    add_vehicle_argument,
+    chosen_controller,
+    finite_float,
+)
 from offboard.control.options import Switching, values
 from offboard.logs.timeseries_file import LIVE_LOG_NAME, table_path, write_table
 
@@ -43,12 +50,7 @@ def configure(p: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="flight log: telemetry (.tlog), PX4 ULog (.ulg) or ArduPilot DataFlash (.bin)",
     )
-    p.add_argument(
-        "--vehicle",
-        metavar="FILE",
-        help="vehicle description (TOML file or shipped name; default: the vehicle the run recorded in the "
-        "metrics.json beside the log, else the paper's Table 1)",
-    )
+    add_vehicle_argument(p, "the vehicle the run recorded in the metrics.json beside the log, else the paper's Table 1")
     p.add_argument(
         "--from",
         dest="t_from",
@@ -95,6 +97,11 @@ def configure(p: argparse.ArgumentParser) -> None:
         choices=values(Switching),
         default=None,
         help="controller switching function (default: the run's, else smooth)",
+    )
+    add_controller_choice(
+        p,
+        "the run's (its metrics.json), else the sliding-mode law; smc: the torque-level law, smc-attitude: the "
+        "attitude-level one",
     )
     p.add_argument(
         "--estimate-only",
@@ -202,6 +209,22 @@ def build_config(args: argparse.Namespace, meta: dict[str, Any], live: Any = Non
     lag = cfg.get("actuation_lag_s")
     if isinstance(lag, (int, float)) and math.isfinite(lag) and lag > 0.0:
         extra["actuation_lag_s"] = float(lag)
+    # the controller: --controller, else the run's; smc / smc-attitude are the sliding-mode law at either level
+    controller = chosen_controller(args) or cfg.get("controller")
+    law = "attitude" if cfg.get("law") == "attitude" else "torque"
+    if controller in OWN_LAWS:
+        law = "attitude" if controller == "smc-attitude" else "torque"
+        controller = None
+    elif controller is not None and not isinstance(controller, str):
+        controller = None  # not a name: the run's metrics.json was edited
+    elif controller is not None:
+        from offboard.control.controllers import registry
+
+        if controller not in registry.CONTROLLERS:
+            raise UserError(
+                f"the run flew controller {controller!r}, not known here (known: {', '.join(registry.CONTROLLERS)}): "
+                "give --controller"
+            )
     return ReplayConfig(
         vehicle=vehicle,
         t_from=args.t_from,
@@ -212,7 +235,8 @@ def build_config(args: argparse.Namespace, meta: dict[str, Any], live: Any = Non
         reference=reference,
         switching=switching,
         epsilon=float(epsilon),
-        law="attitude" if cfg.get("law") == "attitude" else "torque",
+        law=law,
+        controller=controller,
         output=cfg.get("output"),
         mask=cfg.get("mask"),
         autopilot=autopilot,

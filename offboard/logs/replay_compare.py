@@ -263,6 +263,8 @@ def replay_metrics(
             "output": output,
             "switching": config.switching,
             "law": config.law,
+            # the controller replayed (smc / smc-attitude: the sliding-mode law of "law")
+            "controller": config.controller or ("smc-attitude" if config.law == "attitude" else "smc"),
             "epsilon": config.epsilon,
             "layer_errors": None if config.layer_errors is None else list(config.layer_errors),
             "actuation_lag_s": config.actuation_lag_s,

@@ -133,7 +133,8 @@ class ReplayConfig:
     ``AutopilotModel`` fields (flavour, attitude_p, rate_bandwidth, hover_thrust_norm, angle_boost; flavour
     defaults to the HEARTBEAT's);
     live: the live run's tick log, for an exact replay; estimate_only: run the estimator on the grid over the whole
-    log even where it holds an offboard flight (no controller).
+    log even where it holds an offboard flight (no controller); controller: a controller of the registry replayed
+    instead of the sliding-mode law of ``law`` (None: that law), as ``slung fly --controller`` flew it.
     """
 
     vehicle: Vehicle = field(default_factory=Vehicle)
@@ -161,6 +162,7 @@ class ReplayConfig:
     autopilot: dict[str, Any] | None = None
     live: LiveRun | None = None
     estimate_only: bool = False
+    controller: str | None = None
 
 
 #: the replay's estimate columns: the flat-output chains ``Fx``, ``Fx_d1`` ... ``Fy_d5``, then the live log's names

@@ -128,30 +128,45 @@ def replay_ticks(
         if ap_kw.get(key) is not None:
             ap_kw[key] = tuple(ap_kw[key])
     mapping = MappingConfig(**{"output": output, "mask": mask, **(config.mapping or {})})
-    if config.law == "attitude":  # as the live loop builds it (offboard.flight.fly_cli.fly, FlightLoop.run)
-        from offboard.control import smc_attitude
-        from offboard.control.controllers import registry
-        from offboard.flight.attitude_mapping import AttitudeLawMapper, inner_loop_of
-        from offboard.logs.replay import live_tuning
+    from offboard.control.controllers import registry
+    from offboard.flight.attitude_mapping import AttitudeLawMapper, inner_loop_of
+    from offboard.logs.replay import live_tuning
 
-        autopilot = AutopilotModel(**ap_kw)
+    autopilot = AutopilotModel(**ap_kw)
+    drag_ff = registry.drag_in_law(live_tuning(config)) if config.drag_feedforward is None else config.drag_feedforward
+    law: Any = None
+    level = config.law
+    if config.controller is not None:  # a controller of the registry, as slung fly --controller flew it
+        from offboard.control.controllers.flight_output import registered_as_flown
+
+        law, level = registered_as_flown(
+            config.controller,
+            vehicle,
+            output,
+            switching=config.switching,
+            epsilon=config.epsilon,
+            drag_feedforward=drag_ff,
+        )
+    elif config.law == "attitude":  # as the live loop builds it (offboard.flight.fly_cli.fly, FlightLoop.run)
+        from offboard.control import smc_attitude
+
         params = smc_attitude.AttitudeParams.for_vehicle(
             vehicle,
             overrides=dict(vehicle.gains),
             switching=config.switching,
             tilt_max=mapping.max_tilt,
-            drag_feedforward=(
-                registry.drag_in_law(live_tuning(config))
-                if config.drag_feedforward is None
-                else config.drag_feedforward
-            ),
+            drag_feedforward=drag_ff,
         ).with_inner(inner_loop_of(autopilot))
-        mapper: CommandMapper = AttitudeLawMapper(vehicle, mapping, autopilot)
-    else:
-        mapper = CommandMapper(vehicle, mapping, AutopilotModel(**ap_kw))
+    if law is None:
+        law = law_for(params)
+    mapper: CommandMapper = (
+        AttitudeLawMapper(vehicle, mapping, autopilot)
+        if level == "attitude"
+        else CommandMapper(vehicle, mapping, autopilot)
+    )
     tick = None
     if reference is not None:  # the same tick as the live loop (offboard.control.tick)
-        tick = ControlTick(law_for(params), reference, estimator=estimator, mapper=mapper, lag=lag, origin=(ox, oy, oz))
+        tick = ControlTick(law, reference, estimator=estimator, mapper=mapper, lag=lag, origin=(ox, oy, oz))
     nan = math.nan
     nsp = 8 if output == "attitude" else 4
     nan_sp = (nan,) * nsp

@@ -21,8 +21,8 @@ from offboard.report.html_report import Animation, Event, Panel, Trace, write_re
 
 
 def run_title(command: str, log: SimLog, metrics: dict[str, Any]) -> str:
-    """What ran, in one line: command, scenario, vehicle, estimator, autopilot flavour, switching.
-    e.g. ``slung demo: paper scenario, px4 emulator, paper-table1 vehicle, kf estimator, sign switching``."""
+    """What ran, in one line: command, scenario, vehicle, estimator, autopilot flavour, controller, switching. e.g.
+    ``slung demo: paper scenario, px4 emulator, paper-table1 vehicle, kf estimator, smc controller, sign switching``."""
     cfg = metrics.get("config", {})
     parts = [f"{log.scenario.name} scenario"]
     flavour = cfg.get("flavour")
@@ -32,6 +32,8 @@ def run_title(command: str, log: SimLog, metrics: dict[str, Any]) -> str:
     parts.append(f"{cfg.get('vehicle') or log.vehicle.name} vehicle")
     est = cfg.get("estimator") or log.config.estimator
     parts.append("controller on the true state" if est == "truth" else f"{est} estimator")
+    if cfg.get("controller"):  # the controller's registry name (smc, smc-attitude: the sliding-mode law)
+        parts.append(f"{cfg['controller']} controller")
     sw = cfg.get("switching")
     if sw:
         detail = ""

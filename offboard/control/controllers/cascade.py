@@ -159,6 +159,9 @@ class CascadeController:
     :meth:`offsets` is the hook the swing-feedback baseline overrides; ``name``: the row name.
     """
 
+    #: a position-level controller: over ``--output attitude`` it sends its attitude setpoint (``flight_output``)
+    level = "position"
+
     def __init__(self, vehicle: Vehicle, gains: CascadeGains | None = None, name: str = "cascade") -> None:
         self.name = name
         self.vehicle = vehicle
@@ -173,6 +176,11 @@ class CascadeController:
         self.inner.reset()
         self._ivx = self._ivy = self._ivz = 0.0
         self._t: float | None = None
+
+    @property
+    def attitude_sp(self) -> tuple[float, float, float] | None:
+        """The attitude setpoint of the last step (roll, pitch, heading, rad; None before the first)."""
+        return self.inner.attitude_sp
 
     def offsets(self, t: float, est: ControlState) -> tuple[float, float, float, float, float, float]:
         """Horizontal offsets added to the position (m), velocity (m/s) and acceleration (m/s^2) setpoints, world

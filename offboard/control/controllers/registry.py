@@ -1,7 +1,10 @@
-"""Controllers by name, as ``slung compare`` / ``slung sweep`` take them (``--controllers smc,cascade,...``).
+"""Controllers by name, as ``slung compare`` / ``slung sweep`` take them (``--controllers smc,cascade,...``) and
+``slung sim`` / ``fly`` / ``demo`` / ``replay`` take one (``--controller NAME``).
 
 Each entry builds a fresh :class:`~offboard.control.controllers.protocol.Controller` for the controller's nominal
-vehicle; the baselines are imported only when asked for (LQR needs python-control).
+vehicle; the baselines are imported only when asked for (LQR needs python-control). A new controller is its module
+and one line in :data:`CONTROLLERS` (or, from outside the package, one call of :func:`register`):
+docs/architecture.md walks through it.
 """
 
 from __future__ import annotations
@@ -126,7 +129,8 @@ def _swing_feedback(vehicle: Vehicle, **_: object) -> Controller:
     return SwingFeedbackCascade(vehicle)
 
 
-#: name -> factory(vehicle, switching=..., epsilon=...) (the sliding-mode options; the baselines ignore them)
+#: name -> factory(vehicle, switching=..., epsilon=..., inner=..., tilt_max=..., drag_feedforward=...) (the
+#: sliding-mode laws' options, every one passed by keyword: a factory takes ``**_`` for those it ignores)
 CONTROLLERS: dict[str, Callable[..., Controller]] = {
     "smc": _smc,
     "smc-attitude": _smc_attitude,
@@ -136,6 +140,17 @@ CONTROLLERS: dict[str, Callable[..., Controller]] = {
     "zvd": _zvd,
     "swing-feedback": _swing_feedback,
 }
+
+
+def register(name: str, factory: Callable[..., Controller]) -> None:
+    """Add controller ``name`` built by ``factory`` (see :data:`CONTROLLERS`) for this process: the registry line of
+    a controller kept outside this package (a plug-in, a test). ValueError for a name already taken or one that is
+    not a plain word (it is a command-line value and a column of the sweep's table)."""
+    if name in CONTROLLERS:
+        raise ValueError(f"controller {name!r} is registered already")
+    if not name or not all(c.isalnum() or c in "-_" for c in name):
+        raise ValueError(f"controller name {name!r}: letters, digits, '-' and '_' only")
+    CONTROLLERS[name] = factory
 
 
 def make(

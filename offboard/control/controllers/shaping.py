@@ -167,6 +167,14 @@ class ShapedCascade:
         self.shaper = ReferenceShaper(self.amplitudes, self.delays)
         self.reset()
 
+    #: a position-level controller, as the cascade it shapes the reference of (``flight_output``)
+    level = "position"
+
+    @property
+    def attitude_sp(self) -> tuple[float, float, float] | None:
+        """The cascade's attitude setpoint of the last step (roll, pitch, heading, rad; None before the first)."""
+        return self.cascade.attitude_sp
+
     def reset(self) -> None:
         self.cascade.reset()
         self.shaper.reset()

@@ -19,9 +19,11 @@ from offboard.control import smc, smc_attitude
 class PureStepController:
     """A pure-step law with its memory: ``smc`` (torque level) or ``smc-attitude`` (attitude level)."""
 
-    __slots__ = ("_step", "memory", "name", "params")
+    __slots__ = ("_step", "level", "memory", "name", "params")
 
     def __init__(self, step: Callable[..., Any], params: Any, name: str) -> None:
+        #: the level it commands at (``protocol.level_of``): the attitude-level law's command carries its setpoint
+        self.level = "attitude" if isinstance(params, smc_attitude.AttitudeParams) else "torque"
         self._step = step
         self.params = params
         self.name = name

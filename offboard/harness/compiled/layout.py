@@ -70,6 +70,7 @@ def _drop_stale_cache() -> None:
 
 
 _drop_stale_cache()
+from offboard.harness.compiled import compile_notice  # noqa: E402, F401  (says a cold cache's compilation)
 
 #: the decorator of every kernel (see the module docstring)
 kernel = numba.njit(cache=True, error_model="numpy", nogil=True)
