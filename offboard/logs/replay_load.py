@@ -94,13 +94,16 @@ def live_run_load(vehicle: Vehicle, identification: Any) -> dict[str, Any]:
         "cable_m": vehicle.cable_length if attached else None,
         "uncertainty": None,
         "source": "the vehicle file the run recorded",
+        "prior": {"mass_kg": vehicle.mass_load, "cable_m": vehicle.cable_length},
     }
     if isinstance(identification, dict):
         block["in_flight_identification"] = identification
-        block["prior"] = identification.get("prior")
+        if isinstance(identification.get("prior"), dict):
+            block["prior"] = identification["prior"]
         if identification.get("used"):
             block["uncertainty"] = identification.get("uncertainty")
             block["source"] = "identified in flight (slung fly --identify-load)"
+    block["reason"] = block["source"]
     block["estimator_load"] = {"mass_kg": vehicle.mass_load, "cable_m": vehicle.cable_length}
     return block
 
