@@ -217,10 +217,12 @@ def test_the_kernels_compile_the_scalar_paths_own_functions_and_their_cache_foll
     import inspect
     from pathlib import Path
 
+    from estimators.filters import compiled as filter_kernels
     from estimators.filters import small_kf
+    from estimators.filters.compiled import kf, kf_predict
     from estimators.model import cable, flatness, frames, rotations
     from offboard.control import smc
-    from offboard.harness.compiled import attitude_law, kf, kf_predict, px4_loops, smc_law
+    from offboard.harness.compiled import attitude_law, px4_loops, smc_law
     from sim_bridge.inner import px4_inner
 
     pairs = [
@@ -242,8 +244,16 @@ def test_the_kernels_compile_the_scalar_paths_own_functions_and_their_cache_foll
         (kf_predict._sandwich3, small_kf.sandwich3),
         (kf._euler_rates, rotations.euler_rates),
         (kf._world_tilt, flatness.world_tilt),
+        (kf._cable_pull, cable.cable_pull),
     ]
     root = Path(lay.__file__).resolve().parents[3]
     for kernel, scalar in pairs:
         assert kernel.py_func is scalar
-        assert Path(inspect.getsourcefile(scalar)).resolve().relative_to(root).as_posix() in lay.SHARED_SOURCES
+        source = Path(inspect.getsourcefile(scalar)).resolve().relative_to(root).as_posix()
+        assert source in lay.SHARED_SOURCES
+    # the filter's kernels keep their own cache: its sources list the scalar functions they compile, and the engine's
+    # sources list the filter's (a change to the filter drops both caches)
+    for _, scalar in pairs[-6:]:  # the filter's: kf_predict's and kf's
+        source = Path(inspect.getsourcefile(scalar)).resolve().relative_to(root).as_posix()
+        assert source in filter_kernels.SHARED_SOURCES
+    assert set(filter_kernels.SOURCES) <= set(lay._engine_sources())

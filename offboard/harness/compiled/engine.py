@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
+from estimators.filters.compiled import kf as ckf
 from offboard.harness.compiled import attitude_law as cal
 from offboard.harness.compiled import inputs as cin
-from offboard.harness.compiled import kf as ckf
 from offboard.harness.compiled import laws as claws
 from offboard.harness.compiled import plant as cp
 from offboard.harness.compiled import px4_loops as cpx
