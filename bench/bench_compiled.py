@@ -22,6 +22,7 @@ import time
 import numba
 import numpy as np
 
+from estimators.kernels import EST_SIZE
 from estimators.model.vehicle import Vehicle
 from offboard.control.controllers import registry
 from offboard.harness import sweep
@@ -29,7 +30,7 @@ from offboard.harness.compiled import engine
 from offboard.harness.compiled import laws as claws
 from offboard.harness.compiled import plant as cp
 from offboard.harness.compiled import schedule as csched
-from offboard.harness.compiled.layout import EST_SIZE, REF_SIZE
+from offboard.harness.compiled.layout import REF_SIZE
 
 SIM_S = 13.0  # simulated seconds of one run of the default file
 

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from sweep_helpers import assert_engines_write_the_same_table, short_file
 
+from estimators.kernels import EST_SIZE, py_hypot
 from estimators.model.control_state import ControlState
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc, smc_attitude
@@ -25,7 +26,7 @@ from offboard.harness.compare import controller_as_flown
 from offboard.harness.compiled import attitude_law as cal
 from offboard.harness.compiled import engine
 from offboard.harness.compiled import px4_loops as cpx
-from offboard.harness.compiled.layout import EST_SIZE, REF_SIZE, py_hypot
+from offboard.harness.compiled.layout import REF_SIZE
 from offboard.logs.runlog import SimConfig
 from sim_bridge.inner.px4_attitude_path import Px4AttitudePath
 

@@ -20,6 +20,7 @@ import numba
 import numpy as np
 import pytest
 
+from estimators.kernels import EST_ALPHA_Y, EST_FX, EST_FY, EST_PSI, EST_SIZE, EST_THETA, EST_Z
 from estimators.model.control_state import ControlState
 from estimators.model.flatness import flat_constants, truth_control_state
 from estimators.model.vehicle import Vehicle
@@ -28,16 +29,7 @@ from offboard.control.controllers import registry
 from offboard.control.scenarios import make_scenario
 from offboard.harness.compiled import engine, laws
 from offboard.harness.compiled import inputs as cin
-from offboard.harness.compiled.layout import (
-    EST_ALPHA_Y,
-    EST_FX,
-    EST_FY,
-    EST_PSI,
-    EST_SIZE,
-    EST_THETA,
-    EST_Z,
-    REF_SIZE,
-)
+from offboard.harness.compiled.layout import REF_SIZE
 
 V = Vehicle()
 #: the controller's period (s): the flown move's states every 10 plant steps of 1 ms

@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 
+from estimators import kernels as kern
 from estimators.model.vehicle import load_vehicle
 from offboard.harness import sweep
 from offboard.harness.compiled import layout as lay
@@ -118,7 +119,7 @@ class _GivenNoise(SensorSuite):
         return list(self.noise[:n])
 
 
-@pytest.mark.parametrize("kind", [lay.POS, lay.ATT, lay.IMU, lay.LOAD])
+@pytest.mark.parametrize("kind", [kern.POS, kern.ATT, kern.IMU, kern.LOAD])
 def test_sensor_values_equal_the_scalar_sensors(kind: int) -> None:
     """A record's values from the state, the plant's derivative, gravity, the accelerometer's bias and the noise:
     the scalar ``SensorSuite._measure`` of the same state, input and noise, to 1e-14."""
@@ -131,7 +132,7 @@ def test_sensor_values_equal_the_scalar_sensors(kind: int) -> None:
         deriv = np.asarray(dynamics.derivative(0.0, x, u, dynamics.plant_params(v, "paper")))
         out = np.empty(6)
         cp.measure(kind, x, deriv, v.gravity, np.array(suite.accel_bias), np.array(suite.noise), out)
-        np.testing.assert_allclose(out[: lay.FIELDS[kind]], want, rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(out[: kern.FIELDS[kind]], want, rtol=1e-14, atol=1e-14)
 
 
 def test_gust_equals_the_sweeps_gust() -> None:
@@ -182,14 +183,14 @@ def test_truth_state_equals_the_scalar_true_state() -> None:
     from estimators.model.flatness import flat_constants, truth_control_state
 
     k = flat_constants(V)
-    out = np.empty(lay.EST_SIZE)
+    out = np.empty(kern.EST_SIZE)
     for _ in range(10):
         x = _state()
         want = truth_control_state(x, k)
         cp.truth_state(x, k.l, k.g, k.c, out)
-        np.testing.assert_allclose(out[lay.EST_FX : lay.EST_FX + 6], want.fx, rtol=1e-14, atol=1e-14)
-        np.testing.assert_allclose(out[lay.EST_FY : lay.EST_FY + 6], want.fy, rtol=1e-14, atol=1e-14)
-        for name, i in (("z", lay.EST_Z), ("psi_rate", lay.EST_PSI_RATE), ("alpha_x_rate", lay.EST_ALPHA_X_RATE)):
+        np.testing.assert_allclose(out[kern.EST_FX : kern.EST_FX + 6], want.fx, rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(out[kern.EST_FY : kern.EST_FY + 6], want.fy, rtol=1e-14, atol=1e-14)
+        for name, i in (("z", kern.EST_Z), ("psi_rate", kern.EST_PSI_RATE), ("alpha_x_rate", kern.EST_ALPHA_X_RATE)):
             assert out[i] == pytest.approx(getattr(want, name), rel=1e-14, abs=1e-14)
     assert math.isfinite(out.sum())
 
@@ -197,8 +198,8 @@ def test_truth_state_equals_the_scalar_true_state() -> None:
 def test_the_kernels_wrap_angle_equals_the_scalar_paths_bit_for_bit() -> None:
     """``layout.wrap_angle`` (fmod only outside +-2 pi) gives ``estimators.model.frames.wrap_angle``'s value to the
     last bit and sign, in range and far outside it, at the edges of (-pi, pi], and for inf and NaN."""
+    from estimators.kernels import wrap_angle
     from estimators.model.frames import wrap_angle as scalar
-    from offboard.harness.compiled.layout import wrap_angle
 
     edges = [math.pi, -math.pi, 0.0, -0.0, 2 * math.pi, -2 * math.pi, 3 * math.pi, -3 * math.pi, 1e-300, 1e300]
     edges += [float(np.nextafter(math.pi, 0.0)), float(np.nextafter(-math.pi, 0.0)), float(np.nextafter(math.pi, 4))]

@@ -13,3 +13,5 @@ same equations, in the same order, as the scalar path (``offboard.harness.sim.ru
 - :mod:`.inputs`: a run's reference rows, record arrays, and the law's and actuators' constants;
 - :mod:`.engine`: one run's loop, and the sweep's rows for a chunk of runs.
 """
+
+from offboard.harness.compiled import layout as _layout  # noqa: F401  (its import judges the cache, first)

@@ -24,6 +24,7 @@ import math
 
 import numpy as np
 
+from estimators.kernels import EST_FX, EST_FY, EST_SIZE, EST_Z, inline_kernel, maximum, pure_kernel
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc
 from offboard.harness.compiled.baseline_laws import (
@@ -43,15 +44,6 @@ from offboard.harness.compiled.baseline_laws import (
     cascade_step,
     lqr_step,
     swing_offsets,
-)
-from offboard.harness.compiled.layout import (
-    EST_FX,
-    EST_FY,
-    EST_SIZE,
-    EST_Z,
-    inline_kernel,
-    maximum,
-    pure_kernel,
 )
 from offboard.harness.compiled.smc_law import (
     M_LAG_DT,

@@ -1,6 +1,6 @@
-"""The sweep engine's layouts and its compile-once cache. The decorators, the estimate vector's layout, the record
-codes and the numeric helpers every kernel shares are ``estimators.kernels``'s (re-exported here for the engine's
-modules); the filter's kernels are ``estimators.filters.compiled``'s.
+"""The sweep engine's reference row and its compile-once cache (checked when the package is imported, before any of
+its kernels runs). The decorators, the estimate vector's layout, the record codes and the numeric helpers every
+kernel shares are ``estimators.kernels``'s; the filter's kernels are ``estimators.filters.compiled``'s.
 
 The reference row (``REF_SIZE`` floats): ``offboard.control.reference.FlatSample`` flattened, orders 0..6 of
 ``F_x``, ``F_y``, ``z`` and ``psi``.
@@ -11,43 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from estimators.filters import compiled as filter_kernels
-from estimators.kernels import (
-    ADVANCE,
-    ATT,
-    EST_ALPHA_X,
-    EST_ALPHA_X_RATE,
-    EST_ALPHA_Y,
-    EST_ALPHA_Y_RATE,
-    EST_FX,
-    EST_FY,
-    EST_PHI,
-    EST_PHI_RATE,
-    EST_PSI,
-    EST_PSI_RATE,
-    EST_SIZE,
-    EST_THETA,
-    EST_THETA_RATE,
-    EST_Z,
-    EST_Z_RATE,
-    FIELDS,
-    GYRO,
-    IMU,
-    LOAD,
-    POS,
-    ROOT,
-    contracted_kernel,
-    drop_stale_cache,
-    inline_kernel,
-    kernel,
-    maximum,
-    minimum,
-    pack_constants,
-    pure_kernel,
-    py_hypot,
-    py_max,
-    py_min,
-    wrap_angle,
-)
+from estimators.kernels import ROOT, drop_stale_cache
 
 _PACKAGE = Path(__file__).resolve().parent
 #: the scalar path's modules whose functions kernels compile as they are (one source for both paths: the quaternion
@@ -82,45 +46,3 @@ REF_FY = 7
 REF_Z = 14
 REF_PSI = 21
 REF_SIZE = 28
-
-__all__ = [
-    "ADVANCE",
-    "ATT",
-    "EST_ALPHA_X",
-    "EST_ALPHA_X_RATE",
-    "EST_ALPHA_Y",
-    "EST_ALPHA_Y_RATE",
-    "EST_FX",
-    "EST_FY",
-    "EST_PHI",
-    "EST_PHI_RATE",
-    "EST_PSI",
-    "EST_PSI_RATE",
-    "EST_SIZE",
-    "EST_THETA",
-    "EST_THETA_RATE",
-    "EST_Z",
-    "EST_Z_RATE",
-    "FIELDS",
-    "GYRO",
-    "IMU",
-    "LOAD",
-    "POS",
-    "REF_FX",
-    "REF_FY",
-    "REF_PSI",
-    "REF_SIZE",
-    "REF_Z",
-    "SHARED_SOURCES",
-    "contracted_kernel",
-    "inline_kernel",
-    "kernel",
-    "maximum",
-    "minimum",
-    "pack_constants",
-    "pure_kernel",
-    "py_hypot",
-    "py_max",
-    "py_min",
-    "wrap_angle",
-]

@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from estimators.kernels import inline_kernel, pack_constants, pure_kernel, py_max, py_min
 from estimators.model import frames, rotations
-from offboard.harness.compiled.layout import inline_kernel, pack_constants, pure_kernel, py_max, py_min
 from offboard.harness.compiled.plant import body_rates
 from sim_bridge.inner import px4_inner
 
