@@ -122,7 +122,7 @@ def test_compiled_law_limits_the_pair_as_the_scalar_one(switching: str) -> None:
     # "layers": the flight default, each loop's own boundary layer (docs/model.md C-12); on these states a compiled
     # law that used one epsilon instead differs from the scalar one in 19 of 50 (thrust by up to 0.17 N)
     from estimators.kernels import EST_SIZE
-    from offboard.harness.compiled import laws
+    from offboard.control.compiled import laws
 
     layered = switching == "layers"
     params = torque_law_params(VEHICLE, "smooth" if layered else "sign", 1.0, layered=layered)

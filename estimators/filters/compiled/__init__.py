@@ -11,11 +11,8 @@ Importing the package drops its compiled cache when any of :data:`SOURCES` chang
 
 from __future__ import annotations
 
-from pathlib import Path
+from estimators.kernels import kernel_package
 
-from estimators.kernels import ROOT, drop_stale_cache
-
-PACKAGE = Path(__file__).resolve().parent
 #: the scalar modules whose functions these kernels compile as they are (one source for the scalar filter and the
 #: kernels: the block models, the cable's pull, the Euler rates, the world tilt) and the shared kernels
 SHARED_SOURCES = (
@@ -26,8 +23,6 @@ SHARED_SOURCES = (
     "estimators/model/frames.py",
     "estimators/model/rotations.py",
 )
-#: every file the package's compiled code depends on: its modules and :data:`SHARED_SOURCES`
-SOURCES = (*sorted(PACKAGE.glob("*.py")), *(ROOT / s for s in SHARED_SOURCES))
-
-#: True when this import found the compiled cache stale (the kernels compile on their first call)
-STALE = drop_stale_cache(PACKAGE, SOURCES)
+#: every file the package's compiled code depends on (its modules and :data:`SHARED_SOURCES`), and whether this import
+#: found its compiled cache stale (the kernels then compile on their first call)
+SOURCES, STALE = kernel_package(__file__, SHARED_SOURCES)

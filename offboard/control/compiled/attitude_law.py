@@ -1,15 +1,16 @@
 """The attitude-level sliding-mode law of a compiled run (the ``smc-attitude`` row):
 ``offboard.control.smc_attitude.step`` for one run, the scalar law's expressions in its order.
 
-The law commands a thrust and an attitude setpoint, which PX4's attitude loops (:mod:`.px4_loops`) turn into the
-motors' wrench; it also reports the torques it expects the autopilot's rate loop to apply, which the driver gives
-the filter (``push_command``) as the scalar path does. A law is its constants ``c`` (:func:`attitude_constants`,
-indices ``A_*``), a run's memory (:func:`attitude_memory`, indices ``AM_*``: ``smc.ControllerMemory``'s fields and a
-scratch area) and the command it writes (``CMD_*``: 7 floats). Frames and units as in the scalar law: model frame
-(world NWU, z up; body FLU), SI, rad; the estimate and the reference are the vectors of :mod:`.layout`.
+The law commands a thrust and an attitude setpoint, which PX4's attitude loops (``sim_bridge.inner.compiled``)
+turn into the motors' wrench; it also reports the torques it expects the autopilot's rate loop to apply, which the
+driver gives the filter (``push_command``) as the scalar path does. A law is its constants ``c``
+(:func:`attitude_constants`, indices ``A_*``), a run's memory (:func:`attitude_memory`, indices ``AM_*``:
+``smc.ControllerMemory``'s fields and a scratch area) and the command it writes (``CMD_*``: 7 floats). Frames and
+units as in the scalar law: model frame (world NWU, z up; body FLU), SI, rad; the estimate and the reference are the
+vectors of ``estimators.kernels`` and :mod:`.reference_row`.
 
 Mirrored to the last bit (``tests/test_compiled_attitude.py``): Python's ``min`` / ``max`` and ``math.hypot``
-(``layout.py_min``, ``py_max``, ``py_hypot``), ``float ** 2`` (libm's ``pow``, which differs from ``x * x`` in the
+(``kernels.py_min``, ``py_max``, ``py_hypot``), ``float ** 2`` (libm's ``pow``, which differs from ``x * x`` in the
 last bit for about one argument in a thousand: the exponent is read from the constants so that LLVM cannot turn the
 call into a product) and the screens: a non-finite estimate or reference gives the level hover command and keeps
 the memory, as does a non-finite result.
@@ -18,17 +19,15 @@ the memory, as does a non-finite result.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 
 from estimators import kernels as kern
 from estimators.kernels import inline_kernel, pack_constants, pure_kernel, py_hypot, py_max, py_min, wrap_angle
-from estimators.model.vehicle import Vehicle
 from offboard.control import smc
+from offboard.control.compiled import reference_row as lay
+from offboard.control.compiled.laws import estimate_is_finite
 from offboard.control.smc_attitude import AttitudeParams
-from offboard.harness.compiled import layout as lay
-from offboard.harness.compiled.laws import estimate_is_finite
 
 #: the law's code beside ``laws.LAW_*`` (the driver dispatches it itself: it writes a 7-float command)
 LAW_SMC_ATTITUDE = 4
@@ -69,19 +68,6 @@ COMMAND_SIZE = 7
 
 
 # ---- Python side -----------------------------------------------------------------------------------------------------
-def sweep_attitude_params(nominal: Vehicle, drag_feedforward: bool = True) -> AttitudeParams:
-    """The law as ``slung sweep`` flies it on the ``nominal`` vehicle (``compare.controller_as_flown``: designed for
-    the inner loops ``emulated_inner_loop(nominal, "px4")`` reports, within ``MappingConfig().max_tilt``), with the
-    vehicle's drag in its model or not (``registry.drag_in_law`` of the run's filter tuning)."""
-    from offboard.harness.compare import controller_as_flown
-    from offboard.logs.runlog import SimConfig
-
-    _, law = controller_as_flown("smc-attitude", nominal, SimConfig(actuators="mixer"))
-    params = law.params  # type: ignore[attr-defined]  # (a PureStepController: the protocol has no params)
-    assert isinstance(params, AttitudeParams)
-    return replace(params, drag_feedforward=drag_feedforward)
-
-
 def attitude_constants(params: AttitudeParams) -> np.ndarray:
     """The law's constants for ``params``: its derived figures as the scalar law computes them
     (``smc_attitude._derived``, cached per parameter object), so the two cannot drift apart."""

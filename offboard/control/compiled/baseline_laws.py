@@ -17,7 +17,7 @@ import numpy as np
 from estimators import kernels as kern
 from estimators.kernels import inline_kernel, maximum, minimum, pack_constants, pure_kernel, wrap_angle
 from estimators.model.vehicle import Vehicle
-from offboard.harness.compiled import layout as lay
+from offboard.control.compiled import reference_row as lay
 
 # ---- the baselines' constants: the hover thrust (N) first in both layouts ----------------------------------------
 BASE_HOVER = 0

@@ -8,7 +8,7 @@ The path's constants are a float array indexed by ``PX_*`` (:func:`px4_constants
 built for the run's true vehicle, as the scalar path builds it), its state a caller-owned float array indexed by
 ``PS_*`` (:func:`px4_state`). Frames as the scalar classes: the setpoint and the plant state in the model frame
 (world NWU, body FLU), PX4's rates and normalized torques in body FRD; the wrench out ``(thrust N, tau_x, tau_y,
-tau_z N m, FLU)``. Python's ``min`` / ``max`` are mirrored by ``layout.py_min`` / ``py_max``; the yaw-rate
+tau_z N m, FLU)``. Python's ``min`` / ``max`` are mirrored by ``kernels.py_min`` / ``py_max``; the yaw-rate
 feed-forward, always zero on this path (``Px4AttitudePath.set_setpoint``'s default), is left out.
 """
 
@@ -21,8 +21,8 @@ import numpy as np
 
 from estimators.kernels import inline_kernel, pack_constants, pure_kernel, py_max, py_min
 from estimators.model import frames, rotations
-from offboard.harness.compiled.plant import body_rates
 from sim_bridge.inner import px4_inner
+from sim_bridge.plant.compiled.plant import body_rates
 
 # ---- constants ------------------------------------------------------------------------------------------------------
 # attitude P: gains roll, pitch, yaw (1/s; the yaw's divided by the weight), MC_YAW_WEIGHT, rate limits (rad/s)
@@ -59,11 +59,11 @@ PX4_STATE = 47
 
 
 # ---- Python side -----------------------------------------------------------------------------------------------------
-def px4_constants(vehicle: Any, plant_dt: float) -> np.ndarray:
+def px4_constants(vehicle: Any, plant_dt: float, max_tilt: float) -> np.ndarray:
     """The attitude path's constants for the TRUE ``vehicle`` and the plant step ``plant_dt`` (s): read from the
     scalar path's own ``Px4AttitudePath`` (PX4's parameters for that vehicle as the emulator applies them), so the
-    two cannot drift apart; the setpoint's tilt clip is ``MappingConfig().max_tilt``, as ``sim.run`` clips it."""
-    from offboard.flight.command_mapping import MappingConfig
+    two cannot drift apart; ``max_tilt`` (rad) the setpoint's tilt clip (the sweep passes ``MappingConfig().max_tilt``,
+    as ``sim.run`` clips it)."""
     from sim_bridge.inner.px4_attitude_path import Px4AttitudePath
 
     path = Px4AttitudePath(vehicle, plant_dt)
@@ -85,7 +85,7 @@ def px4_constants(vehicle: Any, plant_dt: float) -> np.ndarray:
         values.update({PX_EFF + 4 * a + j: alloc.eff_norm[a][j] for a in range(3)})
         values.update({PX_POS_X + j: motors.pos[j][0], PX_POS_Y + j: motors.pos[j][1]})
     values.update({PX_FMAX: motors.fmax, PX_CQ: motors.c, PX_ALPHA: motors.alpha, PX_TMAX: path.tmax})
-    values[PX_MAX_TILT] = MappingConfig().max_tilt
+    values[PX_MAX_TILT] = max_tilt
     return pack_constants(PX4_SIZE, values)
 
 

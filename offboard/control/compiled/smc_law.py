@@ -2,9 +2,9 @@
 scalar law's expressions (with reciprocals and shared sines: equal to it to about 1e-12,
 ``tests/test_compiled_laws.py``): its constants (:func:`_smc_constants`, indices ``S_*``), its memory (indices
 ``M_*``) and :func:`smc_step`. Its switching function is the scalar law's own (``smc.switching``, compiled; see
-``layout.SHARED_SOURCES``). Frames and units as in the scalar law: model frame (world NWU, z up; body FLU), SI, rad;
-the estimate and the reference are the vectors of :mod:`.layout`. No screening: a NaN in the estimate flows through
-its arithmetic, and into its memory.
+the package's ``SHARED_SOURCES``). Frames and units as in the scalar law: model frame (world NWU, z up; body FLU),
+SI, rad; the estimate and the reference are the vectors of ``estimators.kernels`` and :mod:`.reference_row`. No
+screening: a NaN in the estimate flows through its arithmetic, and into its memory.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from estimators.kernels import inline_kernel, maximum, minimum, pack_constants, 
 from estimators.model import rotations
 from estimators.model.flatness import flat_constants
 from offboard.control import smc
-from offboard.harness.compiled import layout as lay
+from offboard.control.compiled import reference_row as lay
 
 # ---- smc's constants (smc.ControllerParams of the nominal vehicle) ---------------------------------------------------
 # flat constants (m, m/s^2, m/s^4 per rad, 1/s^2), masses (kg), inertia (kg m^2), cos of the largest tilt

@@ -394,7 +394,7 @@ def mixer_step(c: np.ndarray, f: np.ndarray, cmd: np.ndarray, u: np.ndarray) -> 
 @pure_kernel
 def truth_state(x: np.ndarray, l: float, g: float, c: float, out: np.ndarray) -> None:
     """``estimators.model.flatness.truth_control_state`` into the
-    estimate vector ``out`` (``layout.EST_*``), with the controller's nominal flat constants ``l`` (m), ``g``
+    estimate vector ``out`` (``kernels.EST_*``), with the controller's nominal flat constants ``l`` (m), ``g``
     (m/s^2), ``c``."""
     truth_state_at(x, math.sin(x[8]), math.cos(x[8]), l, g, c, out)
 
