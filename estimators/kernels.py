@@ -62,11 +62,12 @@ def kernel_package(init_file: str, shared: Iterable[str], *depends: tuple[Path, 
     """A kernel package's sources and whether its cache was stale (and dropped: :func:`drop_stale_cache`), for the
     package's ``__init__`` (``init_file``: its ``__file__``) to call on import, before any of its kernels runs.
 
-    The sources: the package's modules, ``shared`` (paths from the project's root: the scalar modules whose functions
-    its kernels compile as they are, and the files of the kernels they call) and the sources of each kernel package
-    it ``depends`` on (their ``SOURCES``), so that a change to a kernel it compiles in drops its cache too."""
+    The sources: the package's modules, this module, ``shared`` (paths from the project's root: the scalar modules
+    whose functions its kernels compile as they are) and the sources of each kernel package it ``depends`` on
+    (their ``SOURCES``), so that a change to a kernel it compiles in drops its cache too."""
     package = Path(init_file).resolve().parent
-    files = [*sorted(package.glob("*.py")), *(ROOT / s for s in shared), *(f for d in depends for f in d)]
+    own = [*sorted(package.glob("*.py")), Path(__file__).resolve()]  # (every kernel package compiles in this module's)
+    files = [*own, *(ROOT / s for s in shared), *(f for d in depends for f in d)]
     sources = tuple(dict.fromkeys(files))
     return sources, drop_stale_cache(package, sources)
 

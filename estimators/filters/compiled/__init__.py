@@ -14,10 +14,9 @@ from __future__ import annotations
 from estimators.kernels import kernel_package
 
 #: the scalar modules whose functions these kernels compile as they are (one source for the scalar filter and the
-#: kernels: the block models, the cable's pull, the Euler rates, the world tilt) and the shared kernels
+#: kernels: the block models, the cable's pull, the Euler rates, the world tilt)
 SHARED_SOURCES = (
     "estimators/filters/small_kf.py",
-    "estimators/kernels.py",
     "estimators/model/cable.py",
     "estimators/model/flatness.py",
     "estimators/model/frames.py",

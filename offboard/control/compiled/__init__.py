@@ -10,11 +10,7 @@ from __future__ import annotations
 from estimators.kernels import kernel_package
 
 #: the scalar modules whose functions these kernels compile as they are (the switching function, the thrust
-#: direction) and the shared kernels
-SHARED_SOURCES = (
-    "estimators/kernels.py",
-    "estimators/model/rotations.py",
-    "offboard/control/smc.py",
-)
+#: direction)
+SHARED_SOURCES = ("estimators/model/rotations.py", "offboard/control/smc.py")
 #: every file the package's compiled code depends on, and whether this import found its cache stale
 SOURCES, STALE = kernel_package(__file__, SHARED_SOURCES)

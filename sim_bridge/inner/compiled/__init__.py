@@ -8,13 +8,8 @@ from __future__ import annotations
 from estimators.kernels import kernel_package
 from sim_bridge.plant import compiled as plant_kernels
 
-#: the scalar modules whose functions these kernels compile as they are (PX4's quaternion helpers) and the shared
-#: kernels; the plant's kernels (the body rates) through :data:`plant_kernels.SOURCES`
-SHARED_SOURCES = (
-    "estimators/kernels.py",
-    "estimators/model/frames.py",
-    "estimators/model/rotations.py",
-    "sim_bridge/inner/px4_inner.py",
-)
+#: the scalar modules whose functions these kernels compile as they are (PX4's quaternion helpers; the plant's
+#: kernels, the body rates, come in through ``plant_kernels.SOURCES``)
+SHARED_SOURCES = ("estimators/model/frames.py", "estimators/model/rotations.py", "sim_bridge/inner/px4_inner.py")
 #: every file the package's compiled code depends on, and whether this import found its cache stale
 SOURCES, STALE = kernel_package(__file__, SHARED_SOURCES, plant_kernels.SOURCES)

@@ -8,12 +8,7 @@ from __future__ import annotations
 from estimators.kernels import kernel_package
 
 #: the scalar modules whose functions these kernels compile as they are (the cable's projection, the thrust
-#: direction, the body rates, the planar swing angles) and the shared kernels
-SHARED_SOURCES = (
-    "estimators/kernels.py",
-    "estimators/model/cable.py",
-    "estimators/model/rotations.py",
-    "sim_bridge/plant/dynamics.py",
-)
+#: direction, the body rates, the planar swing angles)
+SHARED_SOURCES = ("estimators/model/cable.py", "estimators/model/rotations.py", "sim_bridge/plant/dynamics.py")
 #: every file the package's compiled code depends on, and whether this import found its cache stale
 SOURCES, STALE = kernel_package(__file__, SHARED_SOURCES)
