@@ -210,11 +210,12 @@ def test_the_kernels_wrap_angle_equals_the_scalar_paths_bit_for_bit() -> None:
 
 
 def test_the_kernels_compile_the_scalar_paths_own_functions_and_their_cache_follows_them() -> None:
-    """The cable's projection, PX4's quaternion helpers, the laws' switching and thrust direction and the filter's
-    block models, covariance propagation, Euler rates and world tilt are one source: the kernels are the scalar
-    functions themselves, compiled (``.py_func``); the file of each is among the ``SHARED_SOURCES`` of the kernel
-    package that compiles it, whose change drops that package's compiled cache (numba keys an inlined function's
-    code by its caller's file only); and the engine's cache depends on every kernel package's sources."""
+    """The cable's projection, PX4's quaternion helpers and desaturation gain, the laws' switching and thrust
+    direction and the filter's block models, covariance propagation, Euler rates and world tilt are one source: the
+    kernels are the scalar functions themselves, compiled (``.py_func``); the file of each is among the
+    ``SHARED_SOURCES`` of the kernel package that compiles it, whose change drops that package's compiled cache
+    (numba keys an inlined function's code by its caller's file only); and the engine's cache depends on every kernel
+    package's sources."""
     import inspect
     from pathlib import Path
 
@@ -244,6 +245,7 @@ def test_the_kernels_compile_the_scalar_paths_own_functions_and_their_cache_foll
         (inner, px4_loops._canonical, px4_inner.canonical),
         (inner, px4_loops._body_z, px4_inner.body_z),
         (inner, px4_loops._shortest_rotation, px4_inner.shortest_rotation),
+        (inner, px4_loops._desaturation_gain, px4_inner.desaturation_gain),
         (laws, attitude_law._switching, smc.switching),
         (laws, smc_law._switching, smc.switching),
         (laws, smc_law._thrust_direction, rotations.thrust_direction_trig),

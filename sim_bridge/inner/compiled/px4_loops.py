@@ -197,21 +197,8 @@ def _rates(c: np.ndarray, s: np.ndarray, x: np.ndarray) -> tuple:
 
 
 # ---- the allocator (Px4Allocator.allocate and its saturation feedback) --------------------------------------------
-@inline_kernel
-def _gain(c: np.ndarray, vec: int, u: np.ndarray, lo: float, hi: float) -> float:
-    """The multiple of the column ``c[vec:vec + 4]`` to add to ``u`` that reduces its saturation the most."""
-    kmin = kmax = 0.0
-    for i in range(4):
-        v = c[vec + i]
-        if abs(v) < 1e-7:
-            continue
-        if u[i] < lo:
-            k = (lo - u[i]) / v
-            kmin, kmax = py_min(kmin, k), py_max(kmax, k)
-        if u[i] > hi:
-            k = (hi - u[i]) / v
-            kmin, kmax = py_min(kmin, k), py_max(kmax, k)
-    return kmin + kmax
+#: the multiple of a column that reduces the saturation the most: the scalar allocator's own function, compiled
+_desaturation_gain = inline_kernel(px4_inner.desaturation_gain)
 
 
 @pure_kernel
@@ -223,12 +210,12 @@ def _desaturate(c: np.ndarray, vec: int, u: np.ndarray, lo: float, hi: float, re
         u_min, u_max = py_min(u_min, u[i]), py_max(u_max, u[i])
     if u_min >= lo and u_max <= hi:
         return
-    g = _gain(c, vec, u, lo, hi)
+    g = _desaturation_gain(c[vec : vec + 4], u, lo, hi)
     if reduce_only and g > 0.0:
         return
     for i in range(4):
         u[i] += g * c[vec + i]
-    g = 0.5 * _gain(c, vec, u, lo, hi)
+    g = 0.5 * _desaturation_gain(c[vec : vec + 4], u, lo, hi)
     for i in range(4):
         u[i] += g * c[vec + i]
 
