@@ -22,14 +22,15 @@ import time
 import numba
 import numpy as np
 
+from estimators.kernels import EST_SIZE
 from estimators.model.vehicle import Vehicle
+from offboard.control.compiled import laws as claws
+from offboard.control.compiled.reference_row import REF_SIZE
 from offboard.control.controllers import registry
 from offboard.harness import sweep
 from offboard.harness.compiled import engine
-from offboard.harness.compiled import laws as claws
-from offboard.harness.compiled import plant as cp
 from offboard.harness.compiled import schedule as csched
-from offboard.harness.compiled.layout import EST_SIZE, REF_SIZE
+from sim_bridge.plant.compiled import plant as cp
 
 SIM_S = 13.0  # simulated seconds of one run of the default file
 

@@ -3,8 +3,8 @@ code named.
 
 numba's JIT code has no symbols, so ``perf report`` shows bare addresses for most of a sweep. This script compiles
 the engine's kernels, writes ``/tmp/perf-PID.map`` (the JIT map ``perf report`` reads: start, size and
-name of every compiled function of ``offboard.harness.compiled``), prints its PID, waits ``--wait`` s for a
-profiler to attach, then flies ``--runs`` runs of the default sweep file for ``--controller``:
+name of every compiled function of the engine and the kernel packages it composes), prints its PID, waits
+``--wait`` s for a profiler to attach, then flies ``--runs`` runs of the default sweep file for ``--controller``:
 
     python bench/profile_compiled.py --runs 2000 &
     perf record -F 4000 -p PID -o perf.data -- sleep 10
@@ -25,16 +25,26 @@ import tempfile
 import time
 from pathlib import Path
 
+#: the packages whose numba functions the map names: the engine and the kernels it composes
+KERNEL_MODULES = (
+    "estimators.kernels",
+    "estimators.filters.compiled",
+    "offboard.control.compiled",
+    "offboard.harness.compiled",
+    "sim_bridge.inner.compiled",
+    "sim_bridge.plant.compiled",
+)
+
 
 def perf_map_lines() -> list[str]:
     """``perf``'s JIT map lines (hex start, hex size, name) of every function numba compiled in this process for
-    the modules of ``offboard.harness.compiled``; a function's size is the distance to the next one (at most
-    4 KB past the last)."""
+    the engine's modules and the kernel packages it composes (:data:`KERNEL_MODULES`); a function's size is the
+    distance to the next one (at most 4 KB past the last)."""
     from numba.core.registry import CPUDispatcher
 
     entries: dict[str, int] = {}
     for name, module in list(sys.modules.items()):
-        if not name.startswith("offboard.harness.compiled"):
+        if not name.startswith(KERNEL_MODULES):
             continue
         for obj in vars(module).values():
             if not isinstance(obj, CPUDispatcher):

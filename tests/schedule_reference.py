@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from offboard.harness.compiled.layout import ADVANCE, ATT, FIELDS, GYRO, IMU, LOAD, POS
+from estimators.kernels import ADVANCE, ATT, FIELDS, GYRO, IMU, LOAD, POS
 from offboard.harness.compiled.schedule import RunSchedule
 from sim_bridge.plant.sensors import SensorSuite
 

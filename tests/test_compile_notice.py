@@ -1,5 +1,5 @@
 """Compilation once per machine, said (issue 35): the first compilation of a process prints one line on stderr
-(``offboard.harness.compiled.compile_notice``), a kernel loaded from numba's cache prints nothing. Each case runs in
+(``estimators.compile_notice``), a kernel loaded from numba's cache prints nothing. Each case runs in
 its own interpreter (the line is said once per process) on a one-line kernel cached beside a module in a temporary
 folder, not on slung's own kernels (their cold compilation takes minutes)."""
 
@@ -9,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from offboard.harness.compiled.compile_notice import LINE
+from estimators.compile_notice import LINE
 
 KERNEL = """\
 import numba
@@ -22,7 +22,7 @@ def twice(x):
 RUN = """\
 import sys
 sys.path.insert(0, sys.argv[1])
-import offboard.harness.compiled.compile_notice
+import estimators.compile_notice
 import tiny_kernel
 assert tiny_kernel.twice(1.5) == 3.0
 """

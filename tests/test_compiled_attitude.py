@@ -1,6 +1,6 @@
 """The compiled engine's ``smc-attitude`` row against the scalar path: the attitude-level law
-(``offboard.harness.compiled.attitude_law``) against ``offboard.control.smc_attitude.step``, PX4's attitude path
-(``offboard.harness.compiled.px4_loops``) against ``sim_bridge.inner.px4_attitude_path.Px4AttitudePath`` and
+(``offboard.control.compiled.attitude_law``) against ``offboard.control.smc_attitude.step``, PX4's attitude path
+(``sim_bridge.inner.compiled.px4_loops``) against ``sim_bridge.inner.px4_attitude_path.Px4AttitudePath`` and
 Python's ``math.hypot`` (``layout.py_hypot``), each to the last bit on random inputs; then drawn runs of the default
 sweep file flown by ``engine.simulate`` equal ``sim.run`` flown as ``sweep.run_one`` flies the row (to 1e-9: the
 compiled plant's RK4 step is the scalar one's to a few ulp), and ``slung sweep --engine compiled`` writes the
@@ -16,17 +16,20 @@ import numpy as np
 import pytest
 from sweep_helpers import assert_engines_write_the_same_table, short_file
 
+from estimators.kernels import EST_SIZE, py_hypot
 from estimators.model.control_state import ControlState
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc, smc_attitude
+from offboard.control.compiled import attitude_law as cal
+from offboard.control.compiled.reference_row import REF_SIZE
 from offboard.control.controllers import registry
+from offboard.flight.command_mapping import MappingConfig
 from offboard.harness import sim, sweep
 from offboard.harness.compare import controller_as_flown
-from offboard.harness.compiled import attitude_law as cal
 from offboard.harness.compiled import engine
-from offboard.harness.compiled import px4_loops as cpx
-from offboard.harness.compiled.layout import EST_SIZE, REF_SIZE, py_hypot
+from offboard.harness.compiled import inputs as cin
 from offboard.logs.runlog import SimConfig
+from sim_bridge.inner.compiled import px4_loops as cpx
 from sim_bridge.inner.px4_attitude_path import Px4AttitudePath
 
 V = Vehicle()
@@ -75,7 +78,7 @@ def test_attitude_law_equals_the_scalar_law_to_the_last_bit(load: bool, drag: bo
     vehicle = V if load else V.with_changes(mass_load=0.0)
     if drag:
         vehicle = vehicle.with_changes(linear_drag=1.0)
-    params = cal.sweep_attitude_params(vehicle)
+    params = cin.sweep_attitude_params(vehicle)
     assert (cal.attitude_constants(params)[cal.A_DRAG_TILT] > 0.0) == (drag and load)  # the law models it with a load
     if not load:
         params = replace(params, gains=replace(params.gains, wn_d=1.5))
@@ -110,7 +113,7 @@ def test_px4_attitude_path_equals_the_scalar_path_to_the_last_bit() -> None:
     tilts beyond the mapping's): every wrench equals ``Px4AttitudePath``'s (as ``sim.run`` clips and gives the
     setpoint), and the allocator saturates in some rate-loop periods, not in all."""
     rng = np.random.default_rng(3)
-    c = cpx.px4_constants(V, 0.001)
+    c = cpx.px4_constants(V, 0.001, MappingConfig().max_tilt)
     max_tilt = c[cpx.PX_MAX_TILT]
     wrench = np.zeros(13)
     periods = saturated = 0
@@ -197,7 +200,6 @@ def test_the_compiled_sweep_builds_the_attitude_law_as_the_scalar_sweep(estimato
     compiled sweep once counted the drag twice: 4.4 m of tracking error where the scalar flew 0.36)."""
     from estimators.model.vehicle import load_vehicle
     from offboard.harness.compare import controller_as_flown
-    from offboard.harness.compiled import inputs as cin
     from offboard.logs.runlog import SimConfig
 
     nominal = load_vehicle("px4-hil-load")

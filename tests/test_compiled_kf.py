@@ -1,4 +1,4 @@
-"""The compiled measured-input filter (``offboard.harness.compiled.kf``) against the scalar filter
+"""The compiled measured-input filter (``estimators.filters.compiled.kf``) against the scalar filter
 (``estimators.filters.measured_kf.MeasuredKalmanEstimator``): drawn runs of the default sweep file, their drawn sensors
 with noise and latency (late records dropped), the mixer and the sliding-mode law, flown by the compiled engine and by
 the scalar path (``offboard.harness.sim.run``) with the filter set up as each case says (the cable sensor or the gyro,
@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 from sweep_helpers import short_file
 
+from estimators.filters.compiled.kf import kf_constants, kf_new_state
 from estimators.filters.measured_kf import MeasuredTuning
 from estimators.model.vehicle import Vehicle
 from offboard.control.controllers import registry
 from offboard.harness import sim, sweep
 from offboard.harness.compiled import engine
-from offboard.harness.compiled.kf import kf_constants, kf_new_state
 from offboard.logs.runlog import SimConfig
 from sim_bridge.plant.sensors import Preset, preset_spec
 
@@ -110,7 +110,7 @@ def test_constants_follow_the_tuning_and_refuse_a_vehicle_without_a_load() -> No
     (the kernels always take it)."""
     from dataclasses import replace
 
-    from offboard.harness.compiled.kf import C_GATE_REOPEN, C_N_THRUST
+    from estimators.filters.compiled.kf import C_GATE_REOPEN, C_N_THRUST
 
     c = kf_constants(V, MeasuredTuning(gate_reopen=7), load_sensor=True, rate_hz=250.0)
     assert np.isfinite(c).all()

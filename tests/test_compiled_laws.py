@@ -1,4 +1,4 @@
-"""The compiled controllers (``offboard.harness.compiled.laws``) against the scalar laws (``offboard.control.smc.step``
+"""The compiled controllers (``offboard.control.compiled.laws``) against the scalar laws (``offboard.control.smc.step``
 and the registry's controllers, ``offboard.control.controllers``): fed the same estimates and references tick after
 tick, each run's command and saturation flag agree to 1e-12 (absolute: commands of a few N and N m; the memories
 feed every later command). The one difference by design: the compiled ``smc`` does not screen its estimate (a NaN
@@ -20,24 +20,17 @@ import numba
 import numpy as np
 import pytest
 
+from estimators.kernels import EST_ALPHA_Y, EST_FX, EST_FY, EST_PSI, EST_SIZE, EST_THETA, EST_Z
 from estimators.model.control_state import ControlState
 from estimators.model.flatness import flat_constants, truth_control_state
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc
+from offboard.control.compiled import laws
+from offboard.control.compiled.reference_row import REF_SIZE
 from offboard.control.controllers import registry
 from offboard.control.scenarios import make_scenario
-from offboard.harness.compiled import engine, laws
+from offboard.harness.compiled import engine
 from offboard.harness.compiled import inputs as cin
-from offboard.harness.compiled.layout import (
-    EST_ALPHA_Y,
-    EST_FX,
-    EST_FY,
-    EST_PSI,
-    EST_SIZE,
-    EST_THETA,
-    EST_Z,
-    REF_SIZE,
-)
 
 V = Vehicle()
 #: the controller's period (s): the flown move's states every 10 plant steps of 1 ms

@@ -1,4 +1,4 @@
-"""The compiled engine's plant, sensors, gust and mixer (``offboard.harness.compiled.plant``) against the scalar
+"""The compiled engine's plant, sensors, gust and mixer (``sim_bridge.plant.compiled.plant``) against the scalar
 plant (``sim_bridge.plant.dynamics``), sensors (``sim_bridge.plant.sensors.SensorSuite``), mixer
 (``sim_bridge.inner.airframe.Mixer``) and true state (``estimators.model.flatness``): the same values on random
 states, inputs and vehicles."""
@@ -10,12 +10,12 @@ import math
 import numpy as np
 import pytest
 
+from estimators import kernels as kern
 from estimators.model.vehicle import load_vehicle
 from offboard.harness import sweep
-from offboard.harness.compiled import layout as lay
-from offboard.harness.compiled import plant as cp
 from sim_bridge.inner.airframe import Mixer
 from sim_bridge.plant import dynamics
+from sim_bridge.plant.compiled import plant as cp
 from sim_bridge.plant.sensors import SensorSuite
 
 V = load_vehicle(None)
@@ -118,7 +118,7 @@ class _GivenNoise(SensorSuite):
         return list(self.noise[:n])
 
 
-@pytest.mark.parametrize("kind", [lay.POS, lay.ATT, lay.IMU, lay.LOAD])
+@pytest.mark.parametrize("kind", [kern.POS, kern.ATT, kern.IMU, kern.LOAD])
 def test_sensor_values_equal_the_scalar_sensors(kind: int) -> None:
     """A record's values from the state, the plant's derivative, gravity, the accelerometer's bias and the noise:
     the scalar ``SensorSuite._measure`` of the same state, input and noise, to 1e-14."""
@@ -131,7 +131,7 @@ def test_sensor_values_equal_the_scalar_sensors(kind: int) -> None:
         deriv = np.asarray(dynamics.derivative(0.0, x, u, dynamics.plant_params(v, "paper")))
         out = np.empty(6)
         cp.measure(kind, x, deriv, v.gravity, np.array(suite.accel_bias), np.array(suite.noise), out)
-        np.testing.assert_allclose(out[: lay.FIELDS[kind]], want, rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(out[: kern.FIELDS[kind]], want, rtol=1e-14, atol=1e-14)
 
 
 def test_gust_equals_the_sweeps_gust() -> None:
@@ -182,23 +182,23 @@ def test_truth_state_equals_the_scalar_true_state() -> None:
     from estimators.model.flatness import flat_constants, truth_control_state
 
     k = flat_constants(V)
-    out = np.empty(lay.EST_SIZE)
+    out = np.empty(kern.EST_SIZE)
     for _ in range(10):
         x = _state()
         want = truth_control_state(x, k)
         cp.truth_state(x, k.l, k.g, k.c, out)
-        np.testing.assert_allclose(out[lay.EST_FX : lay.EST_FX + 6], want.fx, rtol=1e-14, atol=1e-14)
-        np.testing.assert_allclose(out[lay.EST_FY : lay.EST_FY + 6], want.fy, rtol=1e-14, atol=1e-14)
-        for name, i in (("z", lay.EST_Z), ("psi_rate", lay.EST_PSI_RATE), ("alpha_x_rate", lay.EST_ALPHA_X_RATE)):
+        np.testing.assert_allclose(out[kern.EST_FX : kern.EST_FX + 6], want.fx, rtol=1e-14, atol=1e-14)
+        np.testing.assert_allclose(out[kern.EST_FY : kern.EST_FY + 6], want.fy, rtol=1e-14, atol=1e-14)
+        for name, i in (("z", kern.EST_Z), ("psi_rate", kern.EST_PSI_RATE), ("alpha_x_rate", kern.EST_ALPHA_X_RATE)):
             assert out[i] == pytest.approx(getattr(want, name), rel=1e-14, abs=1e-14)
     assert math.isfinite(out.sum())
 
 
 def test_the_kernels_wrap_angle_equals_the_scalar_paths_bit_for_bit() -> None:
-    """``layout.wrap_angle`` (fmod only outside +-2 pi) gives ``estimators.model.frames.wrap_angle``'s value to the
-    last bit and sign, in range and far outside it, at the edges of (-pi, pi], and for inf and NaN."""
+    """``estimators.kernels.wrap_angle`` (fmod only outside +-2 pi) gives ``estimators.model.frames.wrap_angle``'s
+    value to the last bit and sign, in range and far outside it, at the edges of (-pi, pi], and for inf and NaN."""
+    from estimators.kernels import wrap_angle
     from estimators.model.frames import wrap_angle as scalar
-    from offboard.harness.compiled.layout import wrap_angle
 
     edges = [math.pi, -math.pi, 0.0, -0.0, 2 * math.pi, -2 * math.pi, 3 * math.pi, -3 * math.pi, 1e-300, 1e300]
     edges += [float(np.nextafter(math.pi, 0.0)), float(np.nextafter(-math.pi, 0.0)), float(np.nextafter(math.pi, 4))]
@@ -210,40 +210,58 @@ def test_the_kernels_wrap_angle_equals_the_scalar_paths_bit_for_bit() -> None:
 
 
 def test_the_kernels_compile_the_scalar_paths_own_functions_and_their_cache_follows_them() -> None:
-    """The cable's projection, PX4's quaternion helpers, the laws' switching and thrust direction and the filter's
-    block models, covariance propagation, Euler rates and world tilt are one source: the kernels are the scalar
-    functions themselves, compiled (``.py_func``); and the file of each is among ``layout.SHARED_SOURCES``, whose
-    change drops the compiled cache (numba keys an inlined function's code by its caller's file only)."""
+    """The cable's projection, PX4's quaternion helpers and desaturation gain, the laws' switching and thrust
+    direction and the filter's block models, covariance propagation, Euler rates and world tilt are one source: the
+    kernels are the scalar functions themselves, compiled (``.py_func``); the file of each is among the
+    ``SHARED_SOURCES`` of the kernel package that compiles it, whose change drops that package's compiled cache
+    (numba keys an inlined function's code by its caller's file only); and the engine's cache depends on every kernel
+    package's sources."""
     import inspect
     from pathlib import Path
 
+    from estimators import kernels
+    from estimators.filters import compiled as filter_kernels
     from estimators.filters import small_kf
+    from estimators.filters.compiled import kf, kf_predict
     from estimators.model import cable, flatness, frames, rotations
+    from offboard.control import compiled as law_kernels
     from offboard.control import smc
-    from offboard.harness.compiled import attitude_law, kf, kf_predict, px4_loops, smc_law
+    from offboard.control.compiled import attitude_law, smc_law
+    from offboard.harness.compiled import layout as engine_layout
+    from sim_bridge.inner import compiled as inner_kernels
     from sim_bridge.inner import px4_inner
+    from sim_bridge.inner.compiled import px4_loops
+    from sim_bridge.plant import compiled as plant_kernels
 
-    pairs = [
-        (cp._project_cable, dynamics.project_cable),
-        (cp._thrust_direction, rotations.thrust_direction_trig),
-        (cp._planar_swing, cable.planar_swing),
-        (cp.body_rates, rotations.body_rates),
-        (px4_loops.euler_to_quaternion, frames.euler_to_quaternion),
-        (px4_loops._mul, rotations.quat_mul),
-        (px4_loops._conj, rotations.quat_conj),
-        (px4_loops._canonical, px4_inner.canonical),
-        (px4_loops._body_z, px4_inner.body_z),
-        (px4_loops._shortest_rotation, px4_inner.shortest_rotation),
-        (attitude_law._switching, smc.switching),
-        (smc_law._switching, smc.switching),
-        (smc_law._thrust_direction, rotations.thrust_direction_trig),
-        (kf_predict._pendulum_terms, small_kf.pendulum_terms),
-        (kf_predict._pendulum_noise, small_kf.pendulum_noise),
-        (kf_predict._sandwich3, small_kf.sandwich3),
-        (kf._euler_rates, rotations.euler_rates),
-        (kf._world_tilt, flatness.world_tilt),
+    plant, inner, laws, kf_pkg = plant_kernels, inner_kernels, law_kernels, filter_kernels
+    triples = [
+        (plant, cp._project_cable, dynamics.project_cable),
+        (plant, cp._thrust_direction, rotations.thrust_direction_trig),
+        (plant, cp._planar_swing, cable.planar_swing),
+        (plant, cp.body_rates, rotations.body_rates),
+        (inner, px4_loops.euler_to_quaternion, frames.euler_to_quaternion),
+        (inner, px4_loops._mul, rotations.quat_mul),
+        (inner, px4_loops._conj, rotations.quat_conj),
+        (inner, px4_loops._canonical, px4_inner.canonical),
+        (inner, px4_loops._body_z, px4_inner.body_z),
+        (inner, px4_loops._shortest_rotation, px4_inner.shortest_rotation),
+        (inner, px4_loops._desaturation_gain, px4_inner.desaturation_gain),
+        (laws, attitude_law._switching, smc.switching),
+        (laws, smc_law._switching, smc.switching),
+        (laws, smc_law._thrust_direction, rotations.thrust_direction_trig),
+        (kf_pkg, kf_predict._pendulum_terms, small_kf.pendulum_terms),
+        (kf_pkg, kf_predict._pendulum_noise, small_kf.pendulum_noise),
+        (kf_pkg, kf_predict._sandwich3, small_kf.sandwich3),
+        (kf_pkg, kf._euler_rates, rotations.euler_rates),
+        (kf_pkg, kf._world_tilt, flatness.world_tilt),
+        (kf_pkg, kf._cable_pull, cable.cable_pull),
     ]
-    root = Path(lay.__file__).resolve().parents[3]
-    for kernel, scalar in pairs:
+    for package, kernel, scalar in triples:
         assert kernel.py_func is scalar
-        assert Path(inspect.getsourcefile(scalar)).resolve().relative_to(root).as_posix() in lay.SHARED_SOURCES
+        source = Path(inspect.getsourcefile(scalar)).resolve().relative_to(kernels.ROOT).as_posix()
+        assert source in package.SHARED_SOURCES, (package.__name__, source)
+        assert source in engine_layout.SHARED_SOURCES
+    for package in (plant, inner, laws, kf_pkg):
+        assert set(package.SOURCES) <= set(engine_layout.SOURCES), package.__name__
+        assert kernels.ROOT / "estimators/kernels.py" in package.SOURCES  # the shared kernels, compiled in
+    assert set(plant.SOURCES) <= set(inner.SOURCES)  # PX4's loops call the plant's body rates

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 import schedule_reference
 
+from estimators.kernels import ADVANCE, GYRO
 from estimators.model.vehicle import load_vehicle
 from offboard.harness import sweep
 from offboard.harness.compiled import schedule as compiled
-from offboard.harness.compiled.layout import ADVANCE, GYRO
 from offboard.harness.compiled.schedule import RunSchedule
 from sim_bridge.plant.sensors import preset_spec
 

@@ -121,8 +121,8 @@ def test_the_pair_keeps_its_direction_and_the_thrust_yields_the_margin() -> None
 def test_compiled_law_limits_the_pair_as_the_scalar_one(switching: str) -> None:
     # "layers": the flight default, each loop's own boundary layer (docs/model.md C-12); on these states a compiled
     # law that used one epsilon instead differs from the scalar one in 19 of 50 (thrust by up to 0.17 N)
-    from offboard.harness.compiled import laws
-    from offboard.harness.compiled.layout import EST_SIZE
+    from estimators.kernels import EST_SIZE
+    from offboard.control.compiled import laws
 
     layered = switching == "layers"
     params = torque_law_params(VEHICLE, "smooth" if layered else "sign", 1.0, layered=layered)

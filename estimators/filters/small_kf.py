@@ -168,7 +168,7 @@ def sandwich3(
 ) -> tuple[float, float, float, float, float, float]:
     """``Phi P Phi^T + Q`` of three states: ``phi`` the transition's 9 entries row by row, ``p`` and ``q`` the upper
     triangles ``(x00, x01, x02, x11, x12, x22)`` of symmetric ``P`` and ``Q``; the result's upper triangle. Plain
-    floats and tuples: the compiled filter (``offboard.harness.compiled.kf_predict``) compiles this very function."""
+    floats and tuples: the compiled filter (``estimators.filters.compiled.kf_predict``) compiles this very function."""
     f00, f01, f02, f10, f11, f12, f20, f21, f22 = phi
     p00, p01, p02, p11, p12, p22 = p
     # A = Phi P (rows), then A Phi^T

@@ -122,7 +122,7 @@ def execute(
             file=sys.stderr,
         )
     if n_todo and any(sweep.engine_for(config, c) == "compiled" for c, _ in tasks):
-        # (a cold cache's compilation says so itself, once: offboard.harness.compiled.compile_notice)
+        # (a cold cache's compilation says so itself, once: estimators.compile_notice)
         sweep.warm_up(config, list(dict.fromkeys(c for c, _ in tasks)))
     baseline = sweep.single_run_speed(config) if n_todo else None
     wall0 = time.perf_counter()

@@ -30,7 +30,7 @@ stage's file would import the others' internals.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -251,6 +251,24 @@ def quad_rotors(frame: str) -> tuple[Rotor, ...]:
     return QUAD_PLUS if frame == "+" else QUAD_X
 
 
+def desaturation_gain(vec: Sequence[float], u: Sequence[float], lo: float, hi: float) -> float:
+    """The multiple of ``vec`` to add to the motor commands ``u`` (normalized, one per motor) that reduces their
+    saturation outside [lo, hi] the most (PX4's desaturation gain). Plain float arithmetic on sequences: the compiled
+    PX4 loops (``sim_bridge.inner.compiled.px4_loops``) compile this very function."""
+    kmin = kmax = 0.0
+    for i in range(len(u)):
+        v = vec[i]
+        if abs(v) < 1e-7:
+            continue
+        if u[i] < lo:
+            k = (lo - u[i]) / v
+            kmin, kmax = min(kmin, k), max(kmax, k)
+        if u[i] > hi:
+            k = (hi - u[i]) / v
+            kmin, kmax = min(kmin, k), max(kmax, k)
+    return kmin + kmax
+
+
 class Px4Allocator:
     """Normalized torque (FRD) + collective thrust 0..1 -> motor commands 0..1 (PX4's sequential desaturation)."""
 
@@ -294,25 +312,10 @@ class Px4Allocator:
         self.eff_norm = [[float(v) for v in row] for row in en]
         self.n = n
 
-    def _gain(self, vec: list[float], u: list[float], lo: float, hi: float) -> float:
-        """Multiple of ``vec`` to add to ``u`` that reduces its saturation the most (PX4's desaturation gain)."""
-        kmin = kmax = 0.0
-        for i in range(self.n):
-            v = vec[i]
-            if abs(v) < 1e-7:
-                continue
-            if u[i] < lo:
-                k = (lo - u[i]) / v
-                kmin, kmax = min(kmin, k), max(kmax, k)
-            if u[i] > hi:
-                k = (hi - u[i]) / v
-                kmin, kmax = min(kmin, k), max(kmax, k)
-        return kmin + kmax
-
     def _desaturate(self, u: list[float], vec: list[float], lo: float, hi: float, reduce_only: bool = False) -> None:
         if min(u) >= lo and max(u) <= hi:  # nothing saturated (the common case): nothing to do
             return
-        g = self._gain(vec, u, lo, hi)
+        g = desaturation_gain(vec, u, lo, hi)
         if reduce_only and g > 0.0:  # thrust may only be lowered (the vector points up)
             return
         for i in range(self.n):
@@ -320,7 +323,7 @@ class Px4Allocator:
         # a second, half step balances the remaining saturation; like PX4's desaturateActuators it is taken in
         # either direction (only the first step is one-sided): returning here left "full thrust + large roll" at
         # all motors 0 (the roll step then had to undo twice the overshoot)
-        g = 0.5 * self._gain(vec, u, lo, hi)
+        g = 0.5 * desaturation_gain(vec, u, lo, hi)
         for i in range(self.n):
             u[i] += g * vec[i]
 

@@ -20,14 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from offboard.harness.compiled import attitude_law as cal
-from offboard.harness.compiled import inputs as cin
-from offboard.harness.compiled import kf as ckf
-from offboard.harness.compiled import laws as claws
-from offboard.harness.compiled import plant as cp
-from offboard.harness.compiled import px4_loops as cpx
-from offboard.harness.compiled.inputs import ACT_IDEAL, ACT_MIXER, ACT_PX4_ATTITUDE
-from offboard.harness.compiled.layout import (
+from estimators.filters.compiled import kf as ckf
+from estimators.kernels import (
     ADVANCE,
     EST_ALPHA_X,
     EST_ALPHA_Y,
@@ -36,12 +30,16 @@ from offboard.harness.compiled.layout import (
     EST_SIZE,
     GYRO,
     IMU,
-    REF_FX,
-    REF_FY,
-    REF_Z,
     minimum,
     pure_kernel,
 )
+from offboard.control.compiled import attitude_law as cal
+from offboard.control.compiled import laws as claws
+from offboard.control.compiled.reference_row import REF_FX, REF_FY, REF_Z
+from offboard.harness.compiled import inputs as cin
+from offboard.harness.compiled.inputs import ACT_IDEAL, ACT_MIXER, ACT_PX4_ATTITUDE
+from sim_bridge.inner.compiled import px4_loops as cpx
+from sim_bridge.plant.compiled import plant as cp
 
 # ---- a run's figures (as offboard.harness.sweep.evaluate computes them from a logged run) --------------------
 FIG_PEAK, FIG_RESIDUAL, FIG_SQ, FIG_N, FIG_FINAL, FIG_EST_ERR, FIG_SLACK, FIG_FINITE, FIG_SATURATED, FIG_MIN_TENSION = (

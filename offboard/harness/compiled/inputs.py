@@ -9,15 +9,17 @@ their derivatives, world NWU), the law's rows shaped beforehand for ``zv`` / ``z
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
-from offboard.harness.compiled import attitude_law as cal
-from offboard.harness.compiled import laws as claws
-from offboard.harness.compiled import plant as cp
-from offboard.harness.compiled import px4_loops as cpx
-from offboard.harness.compiled.layout import REF_SIZE
+from offboard.control.compiled import attitude_law as cal
+from offboard.control.compiled import laws as claws
+from offboard.control.compiled.reference_row import REF_SIZE
+from offboard.control.smc_attitude import AttitudeParams
+from sim_bridge.inner.compiled import px4_loops as cpx
+from sim_bridge.plant.compiled import plant as cp
 
 #: the actuator kinds of ``fly_run``: the command itself, the four-motor mixer, PX4's attitude path
 ACT_IDEAL, ACT_MIXER, ACT_PX4_ATTITUDE = 0, 1, 2
@@ -55,16 +57,29 @@ def law_arrays(
 ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     """(code, constants, LQR gain, a run's fresh memory) of ``law`` for ``params.vehicle``, the nominal vehicle
     (``params``: ``smc``'s law; the attitude-level law is built as the sweep builds it,
-    ``attitude_law.sweep_attitude_params``, with the vehicle's drag in its model unless the run's filter, built with
+    :func:`sweep_attitude_params`, with the vehicle's drag in its model unless the run's filter, built with
     ``tuning``, feeds its external acceleration forward: ``registry.drag_in_law``)."""
     if law == "smc-attitude":
         from offboard.control.controllers import registry
 
         drag_ff = estimator != "kf" or registry.drag_in_law(tuning)
-        c = cal.attitude_constants(cal.sweep_attitude_params(params.vehicle, drag_ff))
+        c = cal.attitude_constants(sweep_attitude_params(params.vehicle, drag_ff))
         return cal.LAW_SMC_ATTITUDE, c, np.zeros((0, 0)), cal.attitude_memory()
     code, c, K = claws.law_constants(law, params.vehicle, params)
     return code, c, K, claws.law_memory(code, c)
+
+
+def sweep_attitude_params(nominal: Any, drag_feedforward: bool = True) -> AttitudeParams:
+    """The law as ``slung sweep`` flies it on the ``nominal`` vehicle (``compare.controller_as_flown``: designed for
+    the inner loops ``emulated_inner_loop(nominal, "px4")`` reports, within ``MappingConfig().max_tilt``), with the
+    vehicle's drag in its model or not (``registry.drag_in_law`` of the run's filter tuning)."""
+    from offboard.harness.compare import controller_as_flown
+    from offboard.logs.runlog import SimConfig
+
+    _, law = controller_as_flown("smc-attitude", nominal, SimConfig(actuators="mixer"))
+    params = law.params  # type: ignore[attr-defined]  # (a PureStepController: the protocol has no params)
+    assert isinstance(params, AttitudeParams)
+    return replace(params, drag_feedforward=drag_feedforward)
 
 
 def actuator_arrays(kind: int, vehicle: Any, plant_dt: float, hover: float) -> tuple[np.ndarray, ...]:
@@ -73,7 +88,9 @@ def actuator_arrays(kind: int, vehicle: Any, plant_dt: float, hover: float) -> t
     mix_c = cp.mixer_constants(vehicle, plant_dt)
     if kind != ACT_PX4_ATTITUDE:
         return mix_c, np.zeros(1), np.zeros(1)
-    return mix_c, cpx.px4_constants(vehicle, plant_dt), cpx.px4_state(0.25 * hover)
+    from offboard.flight.command_mapping import MappingConfig
+
+    return mix_c, cpx.px4_constants(vehicle, plant_dt, MappingConfig().max_tilt), cpx.px4_state(0.25 * hover)
 
 
 def reference_rows(reference: Any, shaper: Any, n_ticks: int, dt: float) -> tuple[np.ndarray, np.ndarray]:

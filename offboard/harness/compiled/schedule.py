@@ -41,18 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from offboard.harness.compiled.layout import (
-    ADVANCE,
-    ATT,
-    FIELDS,
-    GYRO,
-    IMU,
-    LOAD,
-    POS,
-    inline_kernel,
-    kernel,
-    pure_kernel,
-)
+from estimators.kernels import ADVANCE, ATT, FIELDS, GYRO, IMU, LOAD, POS, inline_kernel, kernel, pure_kernel
 from sim_bridge.plant.sensors import preset_spec
 
 

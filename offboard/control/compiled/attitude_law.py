@@ -1,15 +1,16 @@
 """The attitude-level sliding-mode law of a compiled run (the ``smc-attitude`` row):
 ``offboard.control.smc_attitude.step`` for one run, the scalar law's expressions in its order.
 
-The law commands a thrust and an attitude setpoint, which PX4's attitude loops (:mod:`.px4_loops`) turn into the
-motors' wrench; it also reports the torques it expects the autopilot's rate loop to apply, which the driver gives
-the filter (``push_command``) as the scalar path does. A law is its constants ``c`` (:func:`attitude_constants`,
-indices ``A_*``), a run's memory (:func:`attitude_memory`, indices ``AM_*``: ``smc.ControllerMemory``'s fields and a
-scratch area) and the command it writes (``CMD_*``: 7 floats). Frames and units as in the scalar law: model frame
-(world NWU, z up; body FLU), SI, rad; the estimate and the reference are the vectors of :mod:`.layout`.
+The law commands a thrust and an attitude setpoint, which PX4's attitude loops (``sim_bridge.inner.compiled``)
+turn into the motors' wrench; it also reports the torques it expects the autopilot's rate loop to apply, which the
+driver gives the filter (``push_command``) as the scalar path does. A law is its constants ``c``
+(:func:`attitude_constants`, indices ``A_*``), a run's memory (:func:`attitude_memory`, indices ``AM_*``:
+``smc.ControllerMemory``'s fields and a scratch area) and the command it writes (``CMD_*``: 7 floats). Frames and
+units as in the scalar law: model frame (world NWU, z up; body FLU), SI, rad; the estimate and the reference are the
+vectors of ``estimators.kernels`` and :mod:`.reference_row`.
 
 Mirrored to the last bit (``tests/test_compiled_attitude.py``): Python's ``min`` / ``max`` and ``math.hypot``
-(``layout.py_min``, ``py_max``, ``py_hypot``), ``float ** 2`` (libm's ``pow``, which differs from ``x * x`` in the
+(``kernels.py_min``, ``py_max``, ``py_hypot``), ``float ** 2`` (libm's ``pow``, which differs from ``x * x`` in the
 last bit for about one argument in a thousand: the exponent is read from the constants so that LLVM cannot turn the
 call into a product) and the screens: a non-finite estimate or reference gives the level hover command and keeps
 the memory, as does a non-finite result.
@@ -18,24 +19,15 @@ the memory, as does a non-finite result.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 
-from estimators.model.vehicle import Vehicle
+from estimators import kernels as kern
+from estimators.kernels import inline_kernel, pack_constants, pure_kernel, py_hypot, py_max, py_min, wrap_angle
 from offboard.control import smc
+from offboard.control.compiled import reference_row as lay
+from offboard.control.compiled.laws import estimate_is_finite
 from offboard.control.smc_attitude import AttitudeParams
-from offboard.harness.compiled import layout as lay
-from offboard.harness.compiled.laws import estimate_is_finite
-from offboard.harness.compiled.layout import (
-    inline_kernel,
-    pack_constants,
-    pure_kernel,
-    py_hypot,
-    py_max,
-    py_min,
-    wrap_angle,
-)
 
 #: the law's code beside ``laws.LAW_*`` (the driver dispatches it itself: it writes a 7-float command)
 LAW_SMC_ATTITUDE = 4
@@ -76,19 +68,6 @@ COMMAND_SIZE = 7
 
 
 # ---- Python side -----------------------------------------------------------------------------------------------------
-def sweep_attitude_params(nominal: Vehicle, drag_feedforward: bool = True) -> AttitudeParams:
-    """The law as ``slung sweep`` flies it on the ``nominal`` vehicle (``compare.controller_as_flown``: designed for
-    the inner loops ``emulated_inner_loop(nominal, "px4")`` reports, within ``MappingConfig().max_tilt``), with the
-    vehicle's drag in its model or not (``registry.drag_in_law`` of the run's filter tuning)."""
-    from offboard.harness.compare import controller_as_flown
-    from offboard.logs.runlog import SimConfig
-
-    _, law = controller_as_flown("smc-attitude", nominal, SimConfig(actuators="mixer"))
-    params = law.params  # type: ignore[attr-defined]  # (a PureStepController: the protocol has no params)
-    assert isinstance(params, AttitudeParams)
-    return replace(params, drag_feedforward=drag_feedforward)
-
-
 def attitude_constants(params: AttitudeParams) -> np.ndarray:
     """The law's constants for ``params``: its derived figures as the scalar law computes them
     (``smc_attitude._derived``, cached per parameter object), so the two cannot drift apart."""
@@ -148,10 +127,10 @@ def _height(c: np.ndarray, int_z: float, est: np.ndarray, ref: np.ndarray, n: tu
     whether it was clipped); ``int_z`` the updated height-error integral (m s), ``n`` the thrust direction (world)."""
     n1, n2, n3 = n[0], n[1], n[2]
     if c[A_WITH_LOAD] != 0.0:  # the cable from the planar angles (estimators.model.cable.cable_from_planar)
-        ay, ax = est[lay.EST_ALPHA_Y], est[lay.EST_ALPHA_X]
+        ay, ax = est[kern.EST_ALPHA_Y], est[kern.EST_ALPHA_X]
         ty, tx = math.tan(ay), math.tan(ax)
-        dty = est[lay.EST_ALPHA_Y_RATE] / math.cos(ay) ** c[A_TWO]
-        dtx = est[lay.EST_ALPHA_X_RATE] / math.cos(ax) ** c[A_TWO]
+        dty = est[kern.EST_ALPHA_Y_RATE] / math.cos(ay) ** c[A_TWO]
+        dtx = est[kern.EST_ALPHA_X_RATE] / math.cos(ax) ** c[A_TWO]
         nn = math.sqrt(1.0 + ty * ty + tx * tx)
         r1, r2, r3 = ty / nn, tx / nn, -1.0 / nn
         dn = (ty * dty + tx * dtx) / nn
@@ -162,8 +141,8 @@ def _height(c: np.ndarray, int_z: float, est: np.ndarray, ref: np.ndarray, n: tu
     else:
         g_z = py_max(n3, 0.3) / c[A_M]
         f_z = -c[A_G]
-    e_z = est[lay.EST_Z] - ref[lay.REF_Z]
-    e_zd = est[lay.EST_Z_RATE] - ref[lay.REF_Z + 1]
+    e_z = est[kern.EST_Z] - ref[lay.REF_Z]
+    e_zd = est[kern.EST_Z_RATE] - ref[lay.REF_Z + 1]
     s_z = e_zd + c[A_LAM1] * e_z + c[A_LAM0] * int_z
     sw_z = c[A_RHO_Z] * _switching(s_z, c[A_EPS_Z], smooth) + 0.5 * c[A_REACH_Z] * s_z
     thrust = (ref[lay.REF_Z + 2] - f_z - c[A_LAM1] * e_zd - c[A_LAM0] * e_z - sw_z) / g_z
@@ -205,17 +184,20 @@ def _errors(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray, ref: np.
     ex, ey = mem[AM_EX : AM_EX + 5], mem[AM_EY : AM_EY + 5]
     if c[A_WITH_LOAD] != 0.0:
         for i in range(5):
-            ex[i] = est[lay.EST_FX + i] - ref[lay.REF_FX + i]
-            ey[i] = est[lay.EST_FY + i] - ref[lay.REF_FY + i]
+            ex[i] = est[kern.EST_FX + i] - ref[lay.REF_FX + i]
+            ey[i] = est[kern.EST_FY + i] - ref[lay.REF_FY + i]
         if c[A_DRAG_TILT] > 0.0:  # F^(4) = c (a + n - kt v), v the vehicle's velocity F' - l a'
-            ex[4] = ex[4] - c[A_C] * c[A_DRAG_TILT] * (est[lay.EST_FX + 1] - c[A_L] * est[lay.EST_ALPHA_Y_RATE])
-            ey[4] = ey[4] - c[A_C] * c[A_DRAG_TILT] * (est[lay.EST_FY + 1] - c[A_L] * est[lay.EST_ALPHA_X_RATE])
+            ex[4] = ex[4] - c[A_C] * c[A_DRAG_TILT] * (est[kern.EST_FX + 1] - c[A_L] * est[kern.EST_ALPHA_Y_RATE])
+            ey[4] = ey[4] - c[A_C] * c[A_DRAG_TILT] * (est[kern.EST_FY + 1] - c[A_L] * est[kern.EST_ALPHA_X_RATE])
         obs = (mem[AM_DIST_X], mem[AM_DIST_Y], mem[AM_VEL_X], mem[AM_VEL_Y])
-        rates = (-est[lay.EST_FX + 3] / c[A_G], -est[lay.EST_FY + 3] / c[A_G])  # a' = -F'''/g
+        rates = (-est[kern.EST_FX + 3] / c[A_G], -est[kern.EST_FY + 3] / c[A_G])  # a' = -F'''/g
         return ref[lay.REF_FX + 5], ref[lay.REF_FY + 5], rates, obs
     l = c[A_L]
-    px, py = est[lay.EST_FX] - l * est[lay.EST_ALPHA_Y], est[lay.EST_FY] - l * est[lay.EST_ALPHA_X]
-    vx, vy = est[lay.EST_FX + 1] - l * est[lay.EST_ALPHA_Y_RATE], est[lay.EST_FY + 1] - l * est[lay.EST_ALPHA_X_RATE]
+    px, py = est[kern.EST_FX] - l * est[kern.EST_ALPHA_Y], est[kern.EST_FY] - l * est[kern.EST_ALPHA_X]
+    vx, vy = (
+        est[kern.EST_FX + 1] - l * est[kern.EST_ALPHA_Y_RATE],
+        est[kern.EST_FY + 1] - l * est[kern.EST_ALPHA_X_RATE],
+    )
     an3 = c[A_G] / py_max(n[2], 0.3)
     obs = _observe_disturbance(c, mem, dt, (vx, vy), (an3 * n[0], an3 * n[1]))
     ex[0], ex[1], ex[2] = px - ref[lay.REF_FX], vx - ref[lay.REF_FX + 1], an3 * n[0] + obs[0] - ref[lay.REF_FX + 2]
@@ -277,15 +259,15 @@ def attitude_step(
     expected torques N m body FLU, the attitude setpoint ZYX rad) into ``u_out`` (7,), ``mem`` (``AM_*``) updated;
     returns ``saturated`` (the thrust, the tilt rate or the tilt clipped)."""
     if not (estimate_is_finite(est) and math.isfinite(t) and _reference_is_finite(ref)):
-        return _hover(c, est[lay.EST_PSI], u_out)
+        return _hover(c, est[kern.EST_PSI], u_out)
     smooth = c[A_SMOOTH] != 0.0
     dt = 0.0 if math.isnan(mem[AM_T]) else py_max(0.0, t - mem[AM_T])
-    phi, theta, psi = est[lay.EST_PHI], est[lay.EST_THETA], est[lay.EST_PSI]
+    phi, theta, psi = est[kern.EST_PHI], est[kern.EST_THETA], est[kern.EST_PSI]
     sf, cf = math.sin(phi), math.cos(phi)
     st, ct = math.sin(theta), math.cos(theta)
     sp, cp = math.sin(psi), math.cos(psi)
     n = (sf * sp + cf * cp * st, cf * sp * st - cp * sf, cf * ct)  # the thrust direction, world
-    int_z = mem[AM_INT_Z] + (est[lay.EST_Z] - ref[lay.REF_Z]) * dt
+    int_z = mem[AM_INT_Z] + (est[kern.EST_Z] - ref[lay.REF_Z]) * dt
     thrust, sat_z = _height(c, int_z, est, ref, n, smooth)
 
     # horizontal: the commanded tilt rate per world axis, then the thrust direction setpoint
@@ -318,9 +300,9 @@ def attitude_step(
     # the torques the rate loop is expected to apply for the small-angle body-rate command (for the filter)
     t1d = cp * ndx + sp * ndy  # heading-aligned tilt rate [theta', -phi']
     t2d = -sp * ndx + cp * ndy
-    w1 = est[lay.EST_PHI_RATE] - st * est[lay.EST_PSI_RATE]
-    w2 = cf * est[lay.EST_THETA_RATE] + sf * ct * est[lay.EST_PSI_RATE]
-    w3 = -sf * est[lay.EST_THETA_RATE] + cf * ct * est[lay.EST_PSI_RATE]
+    w1 = est[kern.EST_PHI_RATE] - st * est[kern.EST_PSI_RATE]
+    w2 = cf * est[kern.EST_THETA_RATE] + sf * ct * est[kern.EST_PSI_RATE]
+    w3 = -sf * est[kern.EST_THETA_RATE] + cf * ct * est[kern.EST_PSI_RATE]
     tau_phi = c[A_I] * c[A_B] * (-t2d - w1)
     tau_theta = c[A_I + 1] * c[A_B + 1] * (t1d - w2)
     tau_psi = c[A_I + 2] * c[A_B + 2] * (psid_c - w3)

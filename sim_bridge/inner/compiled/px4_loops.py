@@ -8,7 +8,7 @@ The path's constants are a float array indexed by ``PX_*`` (:func:`px4_constants
 built for the run's true vehicle, as the scalar path builds it), its state a caller-owned float array indexed by
 ``PS_*`` (:func:`px4_state`). Frames as the scalar classes: the setpoint and the plant state in the model frame
 (world NWU, body FLU), PX4's rates and normalized torques in body FRD; the wrench out ``(thrust N, tau_x, tau_y,
-tau_z N m, FLU)``. Python's ``min`` / ``max`` are mirrored by ``layout.py_min`` / ``py_max``; the yaw-rate
+tau_z N m, FLU)``. Python's ``min`` / ``max`` are mirrored by ``kernels.py_min`` / ``py_max``; the yaw-rate
 feed-forward, always zero on this path (``Px4AttitudePath.set_setpoint``'s default), is left out.
 """
 
@@ -19,10 +19,10 @@ from typing import Any
 
 import numpy as np
 
+from estimators.kernels import inline_kernel, pack_constants, pure_kernel, py_max, py_min
 from estimators.model import frames, rotations
-from offboard.harness.compiled.layout import inline_kernel, pack_constants, pure_kernel, py_max, py_min
-from offboard.harness.compiled.plant import body_rates
 from sim_bridge.inner import px4_inner
+from sim_bridge.plant.compiled.plant import body_rates
 
 # ---- constants ------------------------------------------------------------------------------------------------------
 # attitude P: gains roll, pitch, yaw (1/s; the yaw's divided by the weight), MC_YAW_WEIGHT, rate limits (rad/s)
@@ -59,11 +59,11 @@ PX4_STATE = 47
 
 
 # ---- Python side -----------------------------------------------------------------------------------------------------
-def px4_constants(vehicle: Any, plant_dt: float) -> np.ndarray:
+def px4_constants(vehicle: Any, plant_dt: float, max_tilt: float) -> np.ndarray:
     """The attitude path's constants for the TRUE ``vehicle`` and the plant step ``plant_dt`` (s): read from the
     scalar path's own ``Px4AttitudePath`` (PX4's parameters for that vehicle as the emulator applies them), so the
-    two cannot drift apart; the setpoint's tilt clip is ``MappingConfig().max_tilt``, as ``sim.run`` clips it."""
-    from offboard.flight.command_mapping import MappingConfig
+    two cannot drift apart; ``max_tilt`` (rad) the setpoint's tilt clip (the sweep passes ``MappingConfig().max_tilt``,
+    as ``sim.run`` clips it)."""
     from sim_bridge.inner.px4_attitude_path import Px4AttitudePath
 
     path = Px4AttitudePath(vehicle, plant_dt)
@@ -85,7 +85,7 @@ def px4_constants(vehicle: Any, plant_dt: float) -> np.ndarray:
         values.update({PX_EFF + 4 * a + j: alloc.eff_norm[a][j] for a in range(3)})
         values.update({PX_POS_X + j: motors.pos[j][0], PX_POS_Y + j: motors.pos[j][1]})
     values.update({PX_FMAX: motors.fmax, PX_CQ: motors.c, PX_ALPHA: motors.alpha, PX_TMAX: path.tmax})
-    values[PX_MAX_TILT] = MappingConfig().max_tilt
+    values[PX_MAX_TILT] = max_tilt
     return pack_constants(PX4_SIZE, values)
 
 
@@ -197,21 +197,8 @@ def _rates(c: np.ndarray, s: np.ndarray, x: np.ndarray) -> tuple:
 
 
 # ---- the allocator (Px4Allocator.allocate and its saturation feedback) --------------------------------------------
-@inline_kernel
-def _gain(c: np.ndarray, vec: int, u: np.ndarray, lo: float, hi: float) -> float:
-    """The multiple of the column ``c[vec:vec + 4]`` to add to ``u`` that reduces its saturation the most."""
-    kmin = kmax = 0.0
-    for i in range(4):
-        v = c[vec + i]
-        if abs(v) < 1e-7:
-            continue
-        if u[i] < lo:
-            k = (lo - u[i]) / v
-            kmin, kmax = py_min(kmin, k), py_max(kmax, k)
-        if u[i] > hi:
-            k = (hi - u[i]) / v
-            kmin, kmax = py_min(kmin, k), py_max(kmax, k)
-    return kmin + kmax
+#: the multiple of a column that reduces the saturation the most: the scalar allocator's own function, compiled
+_desaturation_gain = inline_kernel(px4_inner.desaturation_gain)
 
 
 @pure_kernel
@@ -223,12 +210,12 @@ def _desaturate(c: np.ndarray, vec: int, u: np.ndarray, lo: float, hi: float, re
         u_min, u_max = py_min(u_min, u[i]), py_max(u_max, u[i])
     if u_min >= lo and u_max <= hi:
         return
-    g = _gain(c, vec, u, lo, hi)
+    g = _desaturation_gain(c[vec : vec + 4], u, lo, hi)
     if reduce_only and g > 0.0:
         return
     for i in range(4):
         u[i] += g * c[vec + i]
-    g = 0.5 * _gain(c, vec, u, lo, hi)
+    g = 0.5 * _desaturation_gain(c[vec : vec + 4], u, lo, hi)
     for i in range(4):
         u[i] += g * c[vec + i]
 

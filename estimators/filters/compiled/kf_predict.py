@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.filters import small_kf
-from offboard.harness.compiled.kf_layout import (
+from estimators.filters.compiled.kf_layout import (
     B_P,
     B_T,
     B_X,
@@ -42,9 +42,9 @@ from offboard.harness.compiled.kf_layout import (
     SWING_X,
     TILT_X,
 )
-from offboard.harness.compiled.layout import inline_kernel, maximum, pure_kernel
+from estimators.kernels import inline_kernel, maximum, pure_kernel
 
-#: this module's kernels: no kernel here creates, keeps or returns an array (``layout.pure_kernel``)
+#: this module's kernels: no kernel here creates, keeps or returns an array (``kernels.pure_kernel``)
 _kernel = pure_kernel
 
 
@@ -68,7 +68,8 @@ def _kinematic_model(h, q_v, q_b, q_p):
     return phi, (0.5 * h2, h, 0.0), q
 
 
-#: the swing's transition and noise over a step: ``small_kf``'s own functions, compiled (``layout.SHARED_SOURCES``)
+#: the swing's transition and noise over a step: ``small_kf``'s own functions, compiled (the package's
+#: ``SHARED_SOURCES``)
 _pendulum_terms = inline_kernel(small_kf.pendulum_terms)
 _pendulum_noise = inline_kernel(small_kf.pendulum_noise)
 _sandwich3 = inline_kernel(small_kf.sandwich3)
@@ -137,7 +138,7 @@ def _swing_input(c, f, bi, t):
 @_kernel
 def kf_advance(c: np.ndarray, f: np.ndarray, n: np.ndarray, bi: int, t: float) -> None:
     """Predict block ``bi`` (``KIN_X`` .. ``SWING_Y``) to ``t`` (s) with the inputs in force (``advance``; a step
-    ``h <= 0`` leaves it). The schedule's block advance event (code ``layout.ADVANCE + bi``)."""
+    ``h <= 0`` leaves it). The schedule's block advance event (code ``kernels.ADVANCE + bi``)."""
     o = F_BLOCKS + BLOCK_SIZE * bi
     tb = f[o + B_T]
     h = t - tb

@@ -8,13 +8,13 @@ A law is a code (``LAW_*``), a float64 constants vector ``c`` (its indices named
 (cascade, swing-feedback) and ``Q_*`` (LQR) constants), the LQR gain ``K`` (empty for the others), all from
 :func:`law_constants`, and a run's memory (:func:`law_memory`, indices ``M_*`` / ``B_*``): :func:`law_step` is
 one control tick of one run. Frames and units as in the scalar path: model frame (world NWU, z up; body FLU), SI,
-rad; the estimate and the reference are the vectors of :mod:`.layout`.
+rad; the estimate and the reference are the vectors of ``estimators.kernels`` and :mod:`.reference_row`.
 
 As the scalar laws: the baselines screen the estimate (a run whose estimate is not finite gets the nominal hover
 command and keeps its memory; each baseline's ``dt`` from its own last step time); ``smc`` does not screen (its
 ``dt`` is the caller's; a NaN flows through its arithmetic, and into its memory). Numpy's
 ``maximum`` / ``minimum`` (NaN propagates; between equal values the second argument) and ``clip`` (a value equal
-to a bound, or NaN, passes unchanged) are mirrored by ``layout.maximum``, ``layout.minimum`` and
+to a bound, or NaN, passes unchanged) are mirrored by ``kernels.maximum``, ``kernels.minimum`` and
 ``smc_law._clip``.
 """
 
@@ -24,9 +24,10 @@ import math
 
 import numpy as np
 
+from estimators.kernels import EST_FX, EST_FY, EST_SIZE, EST_Z, inline_kernel, maximum, pure_kernel
 from estimators.model.vehicle import Vehicle
 from offboard.control import smc
-from offboard.harness.compiled.baseline_laws import (
+from offboard.control.compiled.baseline_laws import (
     B_DELIVERED,
     B_T_LAST,
     B_VEL_X,
@@ -44,16 +45,7 @@ from offboard.harness.compiled.baseline_laws import (
     lqr_step,
     swing_offsets,
 )
-from offboard.harness.compiled.layout import (
-    EST_FX,
-    EST_FY,
-    EST_SIZE,
-    EST_Z,
-    inline_kernel,
-    maximum,
-    pure_kernel,
-)
-from offboard.harness.compiled.smc_law import (
+from offboard.control.compiled.smc_law import (
     M_LAG_DT,
     SMC_MEMORY,
     SMC_SIZE,

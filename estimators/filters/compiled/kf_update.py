@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from offboard.harness.compiled.kf_layout import (
+from estimators.filters.compiled.kf_layout import (
     B_P,
     B_X,
     BLOCK_SIZE,
@@ -38,9 +38,9 @@ from offboard.harness.compiled.kf_layout import (
     TILT_X,
     _pk,
 )
-from offboard.harness.compiled.layout import maximum, minimum, pure_kernel
+from estimators.kernels import maximum, minimum, pure_kernel
 
-#: this module's kernels: no kernel here creates, keeps or returns an array (``layout.pure_kernel``)
+#: this module's kernels: no kernel here creates, keeps or returns an array (``kernels.pure_kernel``)
 _kernel = pure_kernel
 
 

@@ -14,16 +14,10 @@ from typing import Any
 
 import numpy as np
 
+from estimators import kernels as kern
+from estimators.kernels import inline_kernel, maximum, minimum, pack_constants, pure_kernel, wrap_angle
 from estimators.model.vehicle import Vehicle
-from offboard.harness.compiled import layout as lay
-from offboard.harness.compiled.layout import (
-    inline_kernel,
-    maximum,
-    minimum,
-    pack_constants,
-    pure_kernel,
-    wrap_angle,
-)
+from offboard.control.compiled import reference_row as lay
 
 # ---- the baselines' constants: the hover thrust (N) first in both layouts ----------------------------------------
 BASE_HOVER = 0
@@ -101,7 +95,7 @@ def _lqr_constants(law: Any) -> np.ndarray:
 def swing_offsets(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray) -> tuple[float, ...]:
     """``SwingFeedbackStep.offsets``: the applet's position (m), velocity (m/s) and acceleration (m/s^2) setpoint
     offsets, world (x, y each), its memory (``B_REST_*``, ``B_OFF_*``, ``B_VEL_*``) advanced by ``dt`` (s)."""
-    dx, dy = c[C_L] * est[lay.EST_ALPHA_Y], c[C_L] * est[lay.EST_ALPHA_X]  # payload - vehicle, horizontal (m, world)
+    dx, dy = c[C_L] * est[kern.EST_ALPHA_Y], c[C_L] * est[kern.EST_ALPHA_X]  # payload - vehicle, horizontal (m, world)
     alpha = dt / (dt + c[C_REST_RC])
     rest_x = mem[B_REST_X] + alpha * (dx - mem[B_REST_X])
     rest_y = mem[B_REST_Y] + alpha * (dy - mem[B_REST_Y])
@@ -111,8 +105,8 @@ def swing_offsets(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray) ->
     vel_y = 0.0 if far else c[C_WP_POS_P] * (-oy - rest_y)
     mem[B_REST_X], mem[B_REST_Y], mem[B_OFF_X], mem[B_OFF_Y] = rest_x, rest_y, ox, oy
     mem[B_VEL_X], mem[B_VEL_Y] = vel_x, vel_y
-    oax = 0.0 if far else -c[C_VEL_P] * est[lay.EST_FX + 3]
-    oay = 0.0 if far else -c[C_VEL_P] * est[lay.EST_FY + 3]
+    oax = 0.0 if far else -c[C_VEL_P] * est[kern.EST_FX + 3]
+    oay = 0.0 if far else -c[C_VEL_P] * est[kern.EST_FY + 3]
     return ox, oy, vel_x, vel_y, oax, oay
 
 
@@ -120,11 +114,11 @@ def swing_offsets(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray) ->
 def _velocity_setpoint(c: np.ndarray, est: np.ndarray, ref: np.ndarray, offs: tuple) -> tuple[float, float, float]:
     """Step 1: position P + velocity feed-forward (+ the offsets ``offs``), the speed limited; (m/s, world)."""
     ox, oy, ovx, ovy = offs[0], offs[1], offs[2], offs[3]
-    x = est[lay.EST_FX] - c[C_L] * est[lay.EST_ALPHA_Y]  # the vehicle, F = p + l a
-    y = est[lay.EST_FY] - c[C_L] * est[lay.EST_ALPHA_X]
+    x = est[kern.EST_FX] - c[C_L] * est[kern.EST_ALPHA_Y]  # the vehicle, F = p + l a
+    y = est[kern.EST_FY] - c[C_L] * est[kern.EST_ALPHA_X]
     vsx = ref[lay.REF_FX + 1] + ovx + c[C_KP_XY] * (ref[lay.REF_FX] + ox - x)
     vsy = ref[lay.REF_FY + 1] + ovy + c[C_KP_XY] * (ref[lay.REF_FY] + oy - y)
-    vsz = ref[lay.REF_Z + 1] + c[C_KP_Z] * (ref[lay.REF_Z] - est[lay.EST_Z])
+    vsz = ref[lay.REF_Z + 1] + c[C_KP_Z] * (ref[lay.REF_Z] - est[kern.EST_Z])
     sp = math.hypot(vsx, vsy)
     if sp > c[C_VEL_MAX_XY]:
         scale = c[C_VEL_MAX_XY] / sp
@@ -141,15 +135,18 @@ def _acceleration_setpoint(
     first-order acceleration), and the new velocity integrators (m; stored by the caller)."""
     vsx, vsy, vsz = _velocity_setpoint(c, est, ref, offs)
     l = c[C_L]
-    vx, vy = est[lay.EST_FX + 1] - l * est[lay.EST_ALPHA_Y_RATE], est[lay.EST_FY + 1] - l * est[lay.EST_ALPHA_X_RATE]
-    evx, evy, evz = vsx - vx, vsy - vy, vsz - est[lay.EST_Z_RATE]
+    vx, vy = (
+        est[kern.EST_FX + 1] - l * est[kern.EST_ALPHA_Y_RATE],
+        est[kern.EST_FY + 1] - l * est[kern.EST_ALPHA_X_RATE],
+    )
+    evx, evy, evz = vsx - vx, vsy - vy, vsz - est[kern.EST_Z_RATE]
     ivx, ivy, ivz = mem[B_IVX] + evx * dt, mem[B_IVY] + evy * dt, mem[B_IVZ] + evz * dt
-    phi, theta, psi = est[lay.EST_PHI], est[lay.EST_THETA], est[lay.EST_PSI]
+    phi, theta, psi = est[kern.EST_PHI], est[kern.EST_THETA], est[kern.EST_PSI]
     cps, sps = math.cos(psi), math.sin(psi)
     nx = theta * cps + phi * sps
     ny = theta * sps - phi * cps
-    acc_x = c[C_ACC_GAIN] * (c[C_MT] * nx + c[C_MLOAD] * est[lay.EST_ALPHA_Y])
-    acc_y = c[C_ACC_GAIN] * (c[C_MT] * ny + c[C_MLOAD] * est[lay.EST_ALPHA_X])
+    acc_x = c[C_ACC_GAIN] * (c[C_MT] * nx + c[C_MLOAD] * est[kern.EST_ALPHA_Y])
+    acc_y = c[C_ACC_GAIN] * (c[C_MT] * ny + c[C_MLOAD] * est[kern.EST_ALPHA_X])
     rfx2, rfy2 = ref[lay.REF_FX + 2], ref[lay.REF_FY + 2]
     ax = rfx2 + offs[4] + c[C_KV_XY] * evx + c[C_KI_XY] * ivx - c[C_KD_XY] * (acc_x - rfx2)
     ay = rfy2 + offs[5] + c[C_KV_XY] * evy + c[C_KI_XY] * ivy - c[C_KD_XY] * (acc_y - rfy2)
@@ -185,16 +182,16 @@ def _rate_loop(
     clipped with the thrust ``u_out[0]`` (N) into ``u_out``; the rate integrators kept unless their torque is
     clipped. Returns whether anything was clipped."""
     phi_d, theta_d, thrust = att_sp[0], att_sp[1], u_out[0]
-    phi, theta, psi = est[lay.EST_PHI], est[lay.EST_THETA], est[lay.EST_PSI]
+    phi, theta, psi = est[kern.EST_PHI], est[kern.EST_THETA], est[kern.EST_PSI]
     p_sp = c[C_KP_ATT] * (phi_d - phi)
     q_sp = c[C_KP_ATT] * (theta_d - theta)
     r_sp = ref[lay.REF_PSI + 1] + c[C_KP_YAW] * wrap_angle(ref[lay.REF_PSI] - psi)
     r_sp = maximum(-c[C_YAW_RATE_MAX], minimum(c[C_YAW_RATE_MAX], r_sp))
-    e_p, e_q = p_sp - est[lay.EST_PHI_RATE], q_sp - est[lay.EST_THETA_RATE]
+    e_p, e_q = p_sp - est[kern.EST_PHI_RATE], q_sp - est[kern.EST_THETA_RATE]
     i_p, i_q = mem[B_IP] + e_p * dt, mem[B_IQ] + e_q * dt
     tau_phi = c[C_IX] * (c[C_KR_RP] * e_p + c[C_KI_RP] * i_p)
     tau_theta = c[C_IY] * (c[C_KR_RP] * e_q + c[C_KI_RP] * i_q)
-    tau_psi = c[C_IZ] * (c[C_KR_YAW] * (r_sp - est[lay.EST_PSI_RATE]) + ref[lay.REF_PSI + 2])
+    tau_psi = c[C_IZ] * (c[C_KR_YAW] * (r_sp - est[kern.EST_PSI_RATE]) + ref[lay.REF_PSI + 2])
     tp, tt, ts = c[C_TP], c[C_TT], c[C_TS]
     s_p, s_q, s_r = abs(tau_phi) > tp, abs(tau_theta) > tt, abs(tau_psi) > ts
     s_t = thrust > c[C_THRUST_MAX]
@@ -254,25 +251,28 @@ def _lqr_errors(c: np.ndarray, est: np.ndarray, ref: np.ndarray, e: np.ndarray, 
     ny_r, nyd_r = ref[lay.REF_FY + 4] / cc - ax_r, ref[lay.REF_FY + 5] / cc - ax_rd
     nxdd_r = (ref[lay.REF_FX + 6] + w2 * ref[lay.REF_FX + 4]) / cc
     nydd_r = (ref[lay.REF_FY + 6] + w2 * ref[lay.REF_FY + 4]) / cc
-    x, y = est[lay.EST_FX] - l * est[lay.EST_ALPHA_Y], est[lay.EST_FY] - l * est[lay.EST_ALPHA_X]
-    vx, vy = est[lay.EST_FX + 1] - l * est[lay.EST_ALPHA_Y_RATE], est[lay.EST_FY + 1] - l * est[lay.EST_ALPHA_X_RATE]
-    psi = est[lay.EST_PSI]
+    x, y = est[kern.EST_FX] - l * est[kern.EST_ALPHA_Y], est[kern.EST_FY] - l * est[kern.EST_ALPHA_X]
+    vx, vy = (
+        est[kern.EST_FX + 1] - l * est[kern.EST_ALPHA_Y_RATE],
+        est[kern.EST_FY + 1] - l * est[kern.EST_ALPHA_X_RATE],
+    )
+    psi = est[kern.EST_PSI]
     cp, sp = math.cos(psi), math.sin(psi)
     th_r, mphi_r = _rot(cp, sp, nx_r, ny_r)  # the reference tilt in the heading frame is [theta*, -phi*]
     thd_r, mphid_r = _rot(cp, sp, nxd_r, nyd_r)
     thdd_r, mphidd_r = _rot(cp, sp, nxdd_r, nydd_r)
     e[0], e[1] = _rot(cp, sp, x - x_r, y - y_r)
-    e[2] = est[lay.EST_Z] - ref[lay.REF_Z]
+    e[2] = est[kern.EST_Z] - ref[lay.REF_Z]
     e[3], e[4] = _rot(cp, sp, vx - vx_r, vy - vy_r)
-    e[5] = est[lay.EST_Z_RATE] - ref[lay.REF_Z + 1]
-    e[6], e[7], e[8] = est[lay.EST_PHI] + mphi_r, est[lay.EST_THETA] - th_r, wrap_angle(psi - ref[lay.REF_PSI])
+    e[5] = est[kern.EST_Z_RATE] - ref[lay.REF_Z + 1]
+    e[6], e[7], e[8] = est[kern.EST_PHI] + mphi_r, est[kern.EST_THETA] - th_r, wrap_angle(psi - ref[lay.REF_PSI])
     e[9], e[10], e[11] = (
-        est[lay.EST_PHI_RATE] + mphid_r,
-        est[lay.EST_THETA_RATE] - thd_r,
-        est[lay.EST_PSI_RATE] - ref[lay.REF_PSI + 1],
+        est[kern.EST_PHI_RATE] + mphid_r,
+        est[kern.EST_THETA_RATE] - thd_r,
+        est[kern.EST_PSI_RATE] - ref[lay.REF_PSI + 1],
     )
-    e[12], e[13] = _rot(cp, sp, est[lay.EST_ALPHA_Y] - ay_r, est[lay.EST_ALPHA_X] - ax_r)
-    e[14], e[15] = _rot(cp, sp, est[lay.EST_ALPHA_Y_RATE] - ay_rd, est[lay.EST_ALPHA_X_RATE] - ax_rd)
+    e[12], e[13] = _rot(cp, sp, est[kern.EST_ALPHA_Y] - ay_r, est[kern.EST_ALPHA_X] - ax_r)
+    e[14], e[15] = _rot(cp, sp, est[kern.EST_ALPHA_Y_RATE] - ay_rd, est[kern.EST_ALPHA_X_RATE] - ax_rd)
     ff[0], ff[1] = c[Q_MT] * (g + ref[lay.REF_Z + 2]), -c[Q_IX] * mphidd_r
     ff[2], ff[3] = c[Q_IY] * thdd_r, c[Q_IZ] * ref[lay.REF_PSI + 2]
 

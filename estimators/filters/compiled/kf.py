@@ -16,12 +16,12 @@ the adapted position wander, the channels' innovation statistics, the ring of pu
 
 Each of the scalar filter's branches is a branch here (the gate's accept / refuse / reopen, a block not advanced for
 a step ``h <= 0``, the attitude records too close to pitched vertical to use, the series form of the pendulum
-model, a stale IMU). ``layout.maximum`` / ``layout.minimum`` keep a NaN (Python's ``max()`` would not).
+model, a stale IMU). ``kernels.maximum`` / ``kernels.minimum`` keep a NaN (Python's ``max()`` would not).
 
 Units and frames as in ``estimators.filters.measured_kf``: SI, world NWU for the blocks, body FLU for the records'
-rates and specific force; times in s. The records' timing (which are fused when, the
-block advances of a silent stream) is the caller's (``offboard.harness.compiled.schedule``); a non-finite
-estimate is returned as it is (the run has diverged); the nominal vehicle carries a load.
+rates and specific force; times in s. The records' timing (which are fused when, the block advances of a silent
+stream) is the caller's (the sweep engine's ``offboard.harness.compiled.schedule``); a non-finite estimate is
+returned as it is (the run has diverged); the nominal vehicle carries a load.
 """
 
 from __future__ import annotations
@@ -30,10 +30,8 @@ import math
 
 import numpy as np
 
-from estimators.model import flatness, rotations
-from estimators.model.cable import cable_pull
-from offboard.harness.compiled import layout as lay
-from offboard.harness.compiled.kf_layout import (
+from estimators import kernels as lay
+from estimators.filters.compiled.kf_layout import (
     B_P,
     B_T,
     B_X,
@@ -119,13 +117,13 @@ from offboard.harness.compiled.kf_layout import (
     kf_constants,
     kf_new_state,
 )
-from offboard.harness.compiled.kf_predict import (
+from estimators.filters.compiled.kf_predict import (
     _fresh,
     _mean3,
     _rate_mean,
     kf_advance,
 )
-from offboard.harness.compiled.kf_update import (
+from estimators.filters.compiled.kf_update import (
     _gated,
     _learn,
     _one,
@@ -133,7 +131,7 @@ from offboard.harness.compiled.kf_update import (
     _row,
     _value,
 )
-from offboard.harness.compiled.layout import (
+from estimators.kernels import (
     ATT,
     IMU,
     POS,
@@ -143,15 +141,17 @@ from offboard.harness.compiled.layout import (
     pure_kernel,
     wrap_angle,
 )
+from estimators.model import flatness, rotations
+from estimators.model.cable import cable_pull
 
-#: the scalar path's own functions, compiled (``layout.SHARED_SOURCES``): body rates to Euler rates, and the world
-#: tilt and its rate from the attitude
+#: the scalar path's own functions, compiled (the package's ``SHARED_SOURCES``): body rates to Euler rates, and the
+#: world tilt and its rate from the attitude
 _euler_rates = inline_kernel(rotations.euler_rates)
 _world_tilt = inline_kernel(flatness.world_tilt)
 #: the cable's pull as the accelerometer sees it: the scalar filter's own function, compiled
 _cable_pull = inline_kernel(cable_pull)
 
-#: this module's kernels: no kernel here creates, keeps or returns an array (``layout.pure_kernel``)
+#: this module's kernels: no kernel here creates, keeps or returns an array (``kernels.pure_kernel``)
 _kernel = pure_kernel
 _TX, _TY, _HD = (F_BLOCKS + BLOCK_SIZE * bi for bi in (TILT_X, TILT_Y, HEAD))  # the attitude blocks' offsets
 
@@ -182,7 +182,7 @@ def _planar(c, est, off):
 
 @_kernel
 def kf_initialize(c: np.ndarray, f: np.ndarray, n: np.ndarray, t: float, est_guess: np.ndarray) -> None:
-    """Start at ``t`` (s) from the prior mean ``est_guess`` (``layout.EST_*``; its flat chains, ``z``, ``z_rate``,
+    """Start at ``t`` (s) from the prior mean ``est_guess`` (``kernels.EST_*``; its flat chains, ``z``, ``z_rate``,
     ``psi`` and ``psi_rate`` are read) with the tuning's prior covariance; every input, statistic and counter reset."""
     f[:] = 0.0
     n[:] = 0
@@ -370,8 +370,8 @@ def _fuse_load(c, f, n, t, z):
 
 @_kernel
 def kf_fuse(c: np.ndarray, f: np.ndarray, n: np.ndarray, kind: int, t: float, z: np.ndarray) -> None:
-    """Fuse one record of ``kind`` (``layout.POS``, ``ATT``, ``IMU``, ``LOAD``) sampled at ``t`` (s): ``z`` its
-    ``layout.FIELDS[kind]`` fields after its time, in the order of ``estimators.model.measurements``: POS x, y, z
+    """Fuse one record of ``kind`` (``kernels.POS``, ``ATT``, ``IMU``, ``LOAD``) sampled at ``t`` (s): ``z`` its
+    ``kernels.FIELDS[kind]`` fields after its time, in the order of ``estimators.model.measurements``: POS x, y, z
     (m), vx, vy, vz (m/s); ATT phi, theta, psi (rad), p, q, r (rad/s); IMU ax, ay, az (m/s^2), gx, gy, gz (rad/s,
     fused by :func:`kf_fuse_gyro`); LOAD alpha_x, alpha_y (rad)."""
     if kind == POS:
@@ -407,7 +407,7 @@ def _external(c, f, bi, e):
 @_kernel
 def kf_estimate(c: np.ndarray, f: np.ndarray, n: np.ndarray, t: float, est_out: np.ndarray) -> None:
     """``estimate_arrays(t)``: every block's mean predicted to ``t`` (s) with the inputs in force (the filter left as
-    it is), as the estimate vector ``est_out`` (``layout.EST_*``: flat chains, height, attitude, swing)."""
+    it is), as the estimate vector ``est_out`` (``kernels.EST_*``: flat chains, height, attitude, swing)."""
     px, vx, _ = _mean3(c, f, KIN_X, t)
     py, vy, _ = _mean3(c, f, KIN_Y, t)
     z, z_rate, _ = _mean3(c, f, KIN_Z, t)

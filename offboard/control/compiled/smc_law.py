@@ -2,9 +2,9 @@
 scalar law's expressions (with reciprocals and shared sines: equal to it to about 1e-12,
 ``tests/test_compiled_laws.py``): its constants (:func:`_smc_constants`, indices ``S_*``), its memory (indices
 ``M_*``) and :func:`smc_step`. Its switching function is the scalar law's own (``smc.switching``, compiled; see
-``layout.SHARED_SOURCES``). Frames and units as in the scalar law: model frame (world NWU, z up; body FLU), SI, rad;
-the estimate and the reference are the vectors of :mod:`.layout`. No screening: a NaN in the estimate flows through
-its arithmetic, and into its memory.
+the package's ``SHARED_SOURCES``). Frames and units as in the scalar law: model frame (world NWU, z up; body FLU),
+SI, rad; the estimate and the reference are the vectors of ``estimators.kernels`` and :mod:`.reference_row`. No
+screening: a NaN in the estimate flows through its arithmetic, and into its memory.
 """
 
 from __future__ import annotations
@@ -13,18 +13,12 @@ import math
 
 import numpy as np
 
+from estimators import kernels as kern
+from estimators.kernels import inline_kernel, maximum, minimum, pack_constants, pure_kernel, wrap_angle
 from estimators.model import rotations
 from estimators.model.flatness import flat_constants
 from offboard.control import smc
-from offboard.harness.compiled import layout as lay
-from offboard.harness.compiled.layout import (
-    inline_kernel,
-    maximum,
-    minimum,
-    pack_constants,
-    pure_kernel,
-    wrap_angle,
-)
+from offboard.control.compiled import reference_row as lay
 
 # ---- smc's constants (smc.ControllerParams of the nominal vehicle) ---------------------------------------------------
 # flat constants (m, m/s^2, m/s^4 per rad, 1/s^2), masses (kg), inertia (kg m^2), cos of the largest tilt
@@ -97,16 +91,16 @@ def _smc_height(
 ) -> tuple[float, float]:
     """(the height law's thrust, N, unclipped; the new height-error integral, m s): the full nonlinear ``g_z`` of the
     thrust direction ``n`` (world) and the cable (from the planar swing angles and rates of ``est``)."""
-    phi, theta, psi = est[lay.EST_PHI], est[lay.EST_THETA], est[lay.EST_PSI]
+    phi, theta, psi = est[kern.EST_PHI], est[kern.EST_THETA], est[kern.EST_PSI]
     sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
     n1, n2, n3 = _thrust_direction(sf, cf, st, ct, math.sin(psi), math.cos(psi))
     # tan and cos of each swing angle from one sine / cosine pair (tan = sin / cos: an ulp from libm's tan), and
     # products by 1 / |.| where the scalar law divides by it: the same expressions to an ulp or so
-    sy, cy = math.sin(est[lay.EST_ALPHA_Y]), math.cos(est[lay.EST_ALPHA_Y])
-    sx, cx = math.sin(est[lay.EST_ALPHA_X]), math.cos(est[lay.EST_ALPHA_X])
+    sy, cy = math.sin(est[kern.EST_ALPHA_Y]), math.cos(est[kern.EST_ALPHA_Y])
+    sx, cx = math.sin(est[kern.EST_ALPHA_X]), math.cos(est[kern.EST_ALPHA_X])
     ty, tx = sy / cy, sx / cx
-    dty = est[lay.EST_ALPHA_Y_RATE] / (cy * cy)  # numpy's ** 2 is a product
-    dtx = est[lay.EST_ALPHA_X_RATE] / (cx * cx)
+    dty = est[kern.EST_ALPHA_Y_RATE] / (cy * cy)  # numpy's ** 2 is a product
+    dtx = est[kern.EST_ALPHA_X_RATE] / (cx * cx)
     nn = math.sqrt(1.0 + ty * ty + tx * tx)
     inv_n = 1.0 / nn
     inv_n2 = inv_n * inv_n
@@ -117,8 +111,8 @@ def _smc_height(
     m, Mt = c[S_MLOAD], c[S_MT]
     g_z = (Mt * maximum(n3, c[S_COS_MAX]) - m * nr * r3) * c[S_INV_M_MT]
     f_z = m * c[S_L] * (d1 * d1 + d2 * d2 + d3 * d3) * r3 / Mt - c[S_G]
-    e_z = est[lay.EST_Z] - ref[lay.REF_Z]
-    e_zd = est[lay.EST_Z_RATE] - ref[lay.REF_Z + 1]
+    e_z = est[kern.EST_Z] - ref[lay.REF_Z]
+    e_zd = est[kern.EST_Z_RATE] - ref[lay.REF_Z + 1]
     int_z = int_prev + e_z * dt
     s_z = e_zd + c[S_LAMBDA1] * e_z + c[S_LAMBDA0] * int_z
     sw = _switching(s_z, c[S_EPS_Z], smooth)
@@ -133,8 +127,8 @@ def _smc_yaw(
     c: np.ndarray, dt: float, int_prev: float, est: np.ndarray, ref: np.ndarray, smooth: bool
 ) -> tuple[float, float]:
     """(the yaw law's torque, N m, unclipped; the new heading-error integral, rad s)."""
-    e_psi = wrap_angle(est[lay.EST_PSI] - ref[lay.REF_PSI])
-    e_psid = est[lay.EST_PSI_RATE] - ref[lay.REF_PSI + 1]
+    e_psi = wrap_angle(est[kern.EST_PSI] - ref[lay.REF_PSI])
+    e_psid = est[kern.EST_PSI_RATE] - ref[lay.REF_PSI + 1]
     int_psi = int_prev + e_psi * dt
     s_psi = e_psid + c[S_GAMMA1] * e_psi + c[S_GAMMA0] * int_psi
     sw = _switching(s_psi, c[S_EPS_PSI], smooth)
@@ -213,12 +207,12 @@ def smc_step(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray, ref: np
     smooth = c[S_SMOOTH] != 0.0
     thrust, int_z = _smc_height(c, dt, mem[M_INT_Z], est, ref, smooth)
     tau_psi, int_psi = _smc_yaw(c, dt, mem[M_INT_PSI], est, ref, smooth)
-    vx, int_fx = _smc_axis(c, dt, mem[M_INT_FX], est, ref, lay.EST_FX, lay.REF_FX, smooth)
-    vy, int_fy = _smc_axis(c, dt, mem[M_INT_FY], est, ref, lay.EST_FY, lay.REF_FY, smooth)
+    vx, int_fx = _smc_axis(c, dt, mem[M_INT_FX], est, ref, kern.EST_FX, lay.REF_FX, smooth)
+    vy, int_fy = _smc_axis(c, dt, mem[M_INT_FY], est, ref, kern.EST_FY, lay.REF_FY, smooth)
     # the commanded world tilt acceleration n'' = (v + w2 F^(4)) / c, led by the actuation lag's model
-    nddx = (vx + c[S_W2] * est[lay.EST_FX + 4]) * c[S_INV_C]
-    nddy = (vy + c[S_W2] * est[lay.EST_FY + 4]) * c[S_INV_C]
-    phi, theta, psi = est[lay.EST_PHI], est[lay.EST_THETA], est[lay.EST_PSI]
+    nddx = (vx + c[S_W2] * est[kern.EST_FX + 4]) * c[S_INV_C]
+    nddy = (vy + c[S_W2] * est[kern.EST_FY + 4]) * c[S_INV_C]
+    phi, theta, psi = est[kern.EST_PHI], est[kern.EST_THETA], est[kern.EST_PSI]
     sp, cp = math.sin(psi), math.cos(psi)
     lag = c[S_LAG]
     tp_act = tt_act = 0.0
@@ -229,12 +223,12 @@ def smc_step(c: np.ndarray, mem: np.ndarray, dt: float, est: np.ndarray, ref: np
         tp_act = mem[M_TP_ACT] + a * (mem[M_TP_CMD] - mem[M_TP_ACT])
         tt_act = mem[M_TT_ACT] + a * (mem[M_TT_CMD] - mem[M_TT_ACT])
         a1, a2 = tt_act * c[S_INV_IT], tp_act * c[S_INV_IP]  # delivered [theta'', -phi''] = (a1, -a2)
-        nddx = nddx + _smc_lead(c, est, ref, lay.EST_FX, lay.REF_FX, cp * a1 + sp * a2)
-        nddy = nddy + _smc_lead(c, est, ref, lay.EST_FY, lay.REF_FY, sp * a1 - cp * a2)
+        nddx = nddx + _smc_lead(c, est, ref, kern.EST_FX, lay.REF_FX, cp * a1 + sp * a2)
+        nddy = nddy + _smc_lead(c, est, ref, kern.EST_FY, lay.REF_FY, sp * a1 - cp * a2)
     # the heading-aligned tilt t = [theta, -phi]: t'' = Rz(-psi) n'' - 2 w J t' - w' J t + w^2 t
     t1, t2 = theta, -phi
-    t1d, t2d = est[lay.EST_THETA_RATE], -est[lay.EST_PHI_RATE]
-    w = est[lay.EST_PSI_RATE]
+    t1d, t2d = est[kern.EST_THETA_RATE], -est[kern.EST_PHI_RATE]
+    w = est[kern.EST_PSI_RATE]
     wd = ref[lay.REF_PSI + 2]
     t1dd = cp * nddx + sp * nddy + 2.0 * w * t2d + wd * t2 + w * w * t1
     t2dd = -sp * nddx + cp * nddy - 2.0 * w * t1d - wd * t1 + w * w * t2

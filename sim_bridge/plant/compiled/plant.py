@@ -18,9 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from estimators.model import cable, rotations
-from offboard.harness.compiled import layout as lay
-from offboard.harness.compiled.layout import (
+from estimators import kernels as kern
+from estimators.kernels import (
     ATT,
     LOAD,
     POS,
@@ -31,6 +30,7 @@ from offboard.harness.compiled.layout import (
     pure_kernel,
     wrap_angle,
 )
+from estimators.model import cable, rotations
 from sim_bridge.plant import dynamics
 
 # ---- the true vehicle ---------------------------------------------------------------------------------------------
@@ -394,7 +394,7 @@ def mixer_step(c: np.ndarray, f: np.ndarray, cmd: np.ndarray, u: np.ndarray) -> 
 @pure_kernel
 def truth_state(x: np.ndarray, l: float, g: float, c: float, out: np.ndarray) -> None:
     """``estimators.model.flatness.truth_control_state`` into the
-    estimate vector ``out`` (``layout.EST_*``), with the controller's nominal flat constants ``l`` (m), ``g``
+    estimate vector ``out`` (``kernels.EST_*``), with the controller's nominal flat constants ``l`` (m), ``g``
     (m/s^2), ``c``."""
     truth_state_at(x, math.sin(x[8]), math.cos(x[8]), l, g, c, out)
 
@@ -408,14 +408,14 @@ def truth_state_at(x: np.ndarray, sp: float, cp: float, l: float, g: float, c: f
     ny = theta * sp - phi * cp
     nxd = dtheta * cp + dphi * sp - dpsi * ny
     nyd = dtheta * sp - dphi * cp + dpsi * nx
-    out[lay.EST_FX + 0], out[lay.EST_FX + 1] = x[0] + l * ay, x[3] + l * ayd
-    out[lay.EST_FX + 2], out[lay.EST_FX + 3] = -g * ay, -g * ayd
-    out[lay.EST_FX + 4], out[lay.EST_FX + 5] = c * (ay + nx), c * (ayd + nxd)
-    out[lay.EST_FY + 0], out[lay.EST_FY + 1] = x[1] + l * ax, x[4] + l * axd
-    out[lay.EST_FY + 2], out[lay.EST_FY + 3] = -g * ax, -g * axd
-    out[lay.EST_FY + 4], out[lay.EST_FY + 5] = c * (ax + ny), c * (axd + nyd)
-    out[lay.EST_Z], out[lay.EST_Z_RATE] = x[2], x[5]
-    out[lay.EST_PHI], out[lay.EST_THETA], out[lay.EST_PSI] = phi, theta, psi
-    out[lay.EST_PHI_RATE], out[lay.EST_THETA_RATE], out[lay.EST_PSI_RATE] = dphi, dtheta, dpsi
-    out[lay.EST_ALPHA_X], out[lay.EST_ALPHA_Y] = ax, ay
-    out[lay.EST_ALPHA_X_RATE], out[lay.EST_ALPHA_Y_RATE] = axd, ayd
+    out[kern.EST_FX + 0], out[kern.EST_FX + 1] = x[0] + l * ay, x[3] + l * ayd
+    out[kern.EST_FX + 2], out[kern.EST_FX + 3] = -g * ay, -g * ayd
+    out[kern.EST_FX + 4], out[kern.EST_FX + 5] = c * (ay + nx), c * (ayd + nxd)
+    out[kern.EST_FY + 0], out[kern.EST_FY + 1] = x[1] + l * ax, x[4] + l * axd
+    out[kern.EST_FY + 2], out[kern.EST_FY + 3] = -g * ax, -g * axd
+    out[kern.EST_FY + 4], out[kern.EST_FY + 5] = c * (ax + ny), c * (axd + nyd)
+    out[kern.EST_Z], out[kern.EST_Z_RATE] = x[2], x[5]
+    out[kern.EST_PHI], out[kern.EST_THETA], out[kern.EST_PSI] = phi, theta, psi
+    out[kern.EST_PHI_RATE], out[kern.EST_THETA_RATE], out[kern.EST_PSI_RATE] = dphi, dtheta, dpsi
+    out[kern.EST_ALPHA_X], out[kern.EST_ALPHA_Y] = ax, ay
+    out[kern.EST_ALPHA_X_RATE], out[kern.EST_ALPHA_Y_RATE] = axd, ayd

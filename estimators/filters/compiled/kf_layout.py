@@ -16,9 +16,9 @@ import numpy as np
 from estimators.filters.fusion import chi2_quantile
 from estimators.filters.measured_kf import MeasuredTuning, thrust_window
 from estimators.filters.measured_model import channel_floors, for_line
+from estimators.kernels import inline_kernel
 from estimators.model.flatness import flat_constants
 from estimators.model.vehicle import Vehicle
-from offboard.harness.compiled.layout import inline_kernel
 
 # ---- the constants vector c (kf_constants) ------------------------------------------------------------------------
 # the nominal vehicle: inertia about body x, y (kg m^2), M (kg), g (m/s^2), l (m), m / M; flat constants l, g, c
