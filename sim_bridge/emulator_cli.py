@@ -24,6 +24,7 @@ import sys
 from typing import Any
 
 from estimators.errors import UserError
+from estimators.mavlink_signing import parse_key
 from sim_bridge.emulator_api import REFUSALS, EmulatorConfig, build_emulator
 from sim_bridge.plant.sensors import PRESETS
 
@@ -83,7 +84,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sysid", type=int, default=1, help="autopilot system id (default 1)")
     parser.add_argument("--load-sysid", type=int, default=2, help="system id of the load (default 2)")
     parser.add_argument(
-        "--signing-key", metavar="HEX|@FILE", help="MAVLink 2 signing key: 64 hex digits, or @FILE holding them"
+        "--signing-key",
+        metavar="HEX|@FILE",
+        help="MAVLink 2 signing key: 64 hex digits, or @FILE holding them (or the 32 raw bytes)",
     )
     parser.add_argument("--loss-in", type=float, default=0.0, help="incoming packet loss probability")
     parser.add_argument("--loss-out", type=float, default=0.0, help="outgoing packet loss probability")
@@ -171,22 +174,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_signing_key(text: str | None) -> bytes | None:
-    """The 32-byte key of ``--signing-key HEX|@FILE`` (None for None); UserError for a bad one."""
-    if text is None:
-        return None
-    if text.startswith("@"):
-        try:
-            with open(text[1:], encoding="ascii") as f:
-                text = f.read().strip()
-        except OSError as exc:
-            raise UserError(f"cannot read signing key file {text[1:]}: {exc.strerror}") from None
-    try:
-        key = bytes.fromhex(text)
-    except ValueError:
-        raise UserError("--signing-key must be 64 hex digits (32 bytes)") from None
-    if len(key) != 32:
-        raise UserError(f"--signing-key must be 32 bytes (64 hex digits), got {len(key)} bytes")
-    return key
+    """The 32-byte key of ``--signing-key HEX|@FILE`` (None for None); UserError for a bad one. The one parser
+    ``slung fly`` uses too (:func:`estimators.mavlink_signing.parse_key`), so both ends of a link take the same
+    key files (64 hex digits, or the 32 raw bytes)."""
+    return None if text is None else parse_key(text)
 
 
 def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
