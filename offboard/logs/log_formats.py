@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import bisect
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -136,8 +137,17 @@ class _Builder:
             self.info.vt_last = max(self.info.vt_last, t1)
             self.info.lt_first, self.info.lt_last = self.info.vt_first, self.info.vt_last
 
+    def count_times(self, name: str, ts: Sequence[float]) -> None:
+        """:meth:`count` of a topic's samples at the sorted times ``ts`` (s), their span with them."""
+        self.count(name, len(ts), ts[0] if ts else None, ts[-1] if ts else None)
+
     def add(self, kind: str, t: float, payload: Any, order: int = 1) -> None:
         self.entries.append((t, order, Event(kind, LOG_SYSID, t, t, payload)))
+
+    def add_measurement(self, t: float, record: Any) -> None:
+        """A measurement record at ``t``, unless a field of it is not finite (a damaged sample is left out)."""
+        if math.isfinite(sum(record)):
+            self.add("m", t, record)
 
     def scan(self, autopilot: int, mav_type: int | None) -> Scan:
         self.entries.sort(key=lambda e: (e[0], e[1]))
@@ -182,6 +192,11 @@ def _vec(data: dict[str, Any], base: str) -> tuple[Any, Any, Any] | None:
     return None
 
 
+def _seconds(data: dict[str, Any]) -> list[float]:
+    """A topic's sample times, s (ULog's ``timestamp`` is in microseconds)."""
+    return (data["timestamp"] * 1e-6).tolist()
+
+
 def scan_ulog(path: Path) -> Scan:
     """A PX4 ULog as a :class:`Scan` (see module docstring). UserError when pyulog cannot read it."""
     try:
@@ -197,17 +212,17 @@ def scan_ulog(path: Path) -> Scan:
     avel = _topic(ulog, "vehicle_angular_velocity")
     if avel is not None and _vec(avel, "xyz") is not None:
         x, y, z = _vec(avel, "xyz")  # type: ignore[misc]
-        rates_t = (avel["timestamp"] * 1e-6).tolist()
+        rates_t = _seconds(avel)
         rates = list(zip(x.tolist(), y.tolist(), z.tolist()))
     elif att is not None and "rollspeed" in att:
-        rates_t = (att["timestamp"] * 1e-6).tolist()
+        rates_t = _seconds(att)
         rates = list(zip(att["rollspeed"].tolist(), att["pitchspeed"].tolist(), att["yawspeed"].tolist()))
     imu = _topic(ulog, "sensor_combined")
     if imu is not None:
         g = _vec(imu, "gyro_rad")
         a = _vec(imu, "accelerometer_m_s2")
         if g is not None and a is not None:
-            ts = (imu["timestamp"] * 1e-6).tolist()
+            ts = _seconds(imu)
             if not rates:  # the gyro as the body rates when the log has no rate topic
                 rates_t, rates = ts, list(zip(g[0].tolist(), g[1].tolist(), g[2].tolist()))
             cols = [v.tolist() for v in (*a, *g)]
@@ -215,11 +230,10 @@ def scan_ulog(path: Path) -> Scan:
                 ax, ay, az = frd_to_model_body(cols[0][i], cols[1][i], cols[2][i])
                 gx, gy, gz = frd_to_model_body(cols[3][i], cols[4][i], cols[5][i])
                 m = Imu(t, ax, ay, az, gx, gy, gz)
-                if math.isfinite(sum(m)):
-                    b.add("m", t, m)
-            b.count("sensor_combined", len(ts), ts[0] if ts else None, ts[-1] if ts else None)
+                b.add_measurement(t, m)
+            b.count_times("sensor_combined", ts)
     if att is not None and "q[0]" in att:
-        ts = (att["timestamp"] * 1e-6).tolist()
+        ts = _seconds(att)
         q = [att[f"q[{i}]"].tolist() for i in range(4)]
         for i, t in enumerate(ts):
             j = bisect.bisect_right(rates_t, t) - 1
@@ -230,12 +244,11 @@ def scan_ulog(path: Path) -> Scan:
                 continue
             p, qq, r = frd_to_model_body(p_, q_, r_)
             m = Attitude(t, phi, theta, psi, p, qq, r)
-            if math.isfinite(sum(m)):
-                b.add("m", t, m)
-        b.count("vehicle_attitude", len(ts), ts[0] if ts else None, ts[-1] if ts else None)
+            b.add_measurement(t, m)
+        b.count_times("vehicle_attitude", ts)
     lp = _topic(ulog, "vehicle_local_position")
     if lp is not None:
-        ts = (lp["timestamp"] * 1e-6).tolist()
+        ts = _seconds(lp)
         cols = [lp[k].tolist() for k in ("x", "y", "z", "vx", "vy", "vz")]
         valid = lp["xy_valid"].tolist() if "xy_valid" in lp else [1] * len(ts)
         z_valid = lp["z_valid"].tolist() if "z_valid" in lp else [0] * len(ts)
@@ -250,14 +263,13 @@ def scan_ulog(path: Path) -> Scan:
             x, y, z = ned_to_model_vector(cols[0][i], cols[1][i], cols[2][i])
             vx, vy, vz = ned_to_model_vector(cols[3][i], cols[4][i], cols[5][i])
             m = PositionVelocity(t, x, y, z, vx, vy, vz)
-            if math.isfinite(sum(m)):
-                b.add("m", t, m)
-        b.count("vehicle_local_position", len(ts), ts[0] if ts else None, ts[-1] if ts else None)
+            b.add_measurement(t, m)
+        b.count_times("vehicle_local_position", ts)
     _scan_ulog_load_angles(ulog, b)
     mav_type: int | None = None
     st = _topic(ulog, "vehicle_status")
     if st is not None:
-        ts = (st["timestamp"] * 1e-6).tolist()
+        ts = _seconds(st)
         armed_col = st["arming_state"].tolist() if "arming_state" in st else []
         nav = st["nav_state"].tolist() if "nav_state" in st else []
         if "vehicle_type" in st and len(st["vehicle_type"]):
@@ -274,13 +286,13 @@ def scan_ulog(path: Path) -> Scan:
                 last_nav = int(nav[i])
                 b.add("modename", t, PX4_NAV_STATES.get(last_nav, f"nav state {last_nav}"), 0)
                 b.add("mode", t, last_nav == PX4_NAV_STATE_OFFBOARD, 0)
-        b.count("vehicle_status", len(ts), ts[0] if ts else None, ts[-1] if ts else None)
+        b.count_times("vehicle_status", ts)
     if mav_type is None:
         mav_type = _ulog_vehicle_type(ulog, st, b)
     ld = _topic(ulog, "vehicle_land_detected")
     if ld is not None and "landed" in ld:
         last: int | None = None
-        for t, landed in zip((ld["timestamp"] * 1e-6).tolist(), ld["landed"].tolist()):
+        for t, landed in zip(_seconds(ld), ld["landed"].tolist()):
             state = 1 if landed else 2
             if state != last:
                 b.add("landed", t, state, 0)
@@ -320,7 +332,7 @@ def _scan_ulog_load_angles(ulog: Any, b: _Builder) -> None:
         if d.name != "debug_vect" or "name[0]" not in d.data:
             continue
         chars = [d.data[f"name[{i}]"].tolist() for i in range(10) if f"name[{i}]" in d.data]
-        xs, ys, times = d.data["x"].tolist(), d.data["y"].tolist(), (d.data["timestamp"] * 1e-6).tolist()
+        xs, ys, times = d.data["x"].tolist(), d.data["y"].tolist(), _seconds(d.data)
         for i, t in enumerate(times):
             name = bytes(c[i] & 0xFF for c in chars).split(b"\0", 1)[0].decode("ascii", "replace")
             if name != LOAD_ANGLE_NAME or not plausible_load_angles(xs[i], ys[i]):
@@ -329,7 +341,7 @@ def _scan_ulog_load_angles(ulog: Any, b: _Builder) -> None:
             ts.append(t)
     if ts:
         ts.sort()
-        b.count("debug_vect", len(ts), ts[0], ts[-1])
+        b.count_times("debug_vect", ts)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -392,8 +404,7 @@ def scan_dataflash(path: Path) -> Scan:
             ax, ay, az = frd_to_model_body(m.AccX, m.AccY, m.AccZ)
             gx, gy, gz = frd_to_model_body(*gyro)
             rec = Imu(t_now, ax, ay, az, gx, gy, gz)
-            if math.isfinite(sum(rec)):
-                b.add("m", t_now, rec)
+            b.add_measurement(t_now, rec)
         elif kind == "RATE":
             rate_frd = (float(m.R), float(m.P), float(m.Y))  # deg/s, or centideg/s before ArduPilot 3.4: see below
             t_rate = t_now
@@ -407,8 +418,7 @@ def scan_dataflash(path: Path) -> Scan:
                 continue
             p, q, r = frd_to_model_body(*gyro)
             rec2 = Attitude(t_now, phi, theta, psi, p, q, r)
-            if math.isfinite(sum(rec2)):
-                b.add("m", t_now, rec2)
+            b.add_measurement(t_now, rec2)
         elif kind in pos_msgs:
             if kind == "XKF1" and getattr(m, "C", 0) != 0:
                 continue
@@ -442,8 +452,7 @@ def scan_dataflash(path: Path) -> Scan:
     for t, phi, theta, psi, (rr, rp, ry) in att_from_rate:
         p, q, r = frd_to_model_body(rr * rate_scale, rp * rate_scale, ry * rate_scale)
         rec2 = Attitude(t, phi, theta, psi, p, q, r)
-        if math.isfinite(sum(rec2)):
-            b.add("m", t, rec2)
+        b.add_measurement(t, rec2)
     n_att_from_rate = len(att_from_rate)
     if n_att:
         b.sources["body_rates"] = (
@@ -456,8 +465,7 @@ def scan_dataflash(path: Path) -> Scan:
         x, y, z = ned_to_model_vector(m.PN, m.PE, m.PD)
         vx, vy, vz = ned_to_model_vector(m.VN, m.VE, m.VD)
         rec3 = PositionVelocity(t, x, y, z, vx, vy, vz)
-        if math.isfinite(sum(rec3)):
-            b.add("m", t, rec3)
+        b.add_measurement(t, rec3)
     if src is None:
         b.notes.append("no EKF position (XKF1 / NKF1 / EKF1) in the DataFlash log")
     mav_type = ARDUPILOT_FIRMWARE_TYPES.get(firmware or "")
