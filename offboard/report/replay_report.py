@@ -62,6 +62,19 @@ def load_line(load: dict[str, Any]) -> str:
     )
 
 
+def _panel(ax: Any, ylabel: str, ncol: int = 1) -> None:
+    """One panel of the replay's figures: its unit, grid and legend (upper right, small)."""
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8, ncol=ncol)
+
+
+def _frame(axes: Any, title: str) -> None:
+    """A replay figure's shared time axis (the vehicle's clock) and title."""
+    axes[-1].set_xlabel("vehicle time (s)")
+    axes[0].set_title(title)
+
+
 def draw_swing(result: ReplayResult, save: Any) -> None:
     """swing.png: the estimated swing, the cable-angle sensor and the payload's truth where the log has them."""
     plt = pyplot()
@@ -75,11 +88,8 @@ def draw_swing(result: ReplayResult, save: Any) -> None:
             ax.plot(t, meas, lw=0.8, alpha=0.7, label="cable-angle sensor (latest)")
         if result.swing_truth is not None and np.any(np.isfinite(result.swing_truth[:, i])):
             ax.plot(t, result.swing_truth[:, i], ":", lw=1.2, label="payload truth")
-        ax.set_ylabel(f"{name} (rad)")
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8)
-    axes[-1].set_xlabel("vehicle time (s)")
-    axes[0].set_title("swing estimate")
+        _panel(ax, f"{name} (rad)")
+    _frame(axes, "swing estimate")
     save(fig, "swing.png")
 
 
@@ -106,11 +116,8 @@ def draw_figures(result: ReplayResult, out_dir: Path) -> list[Path]:
         r = col(ref)
         if np.any(np.isfinite(r)):
             ax.plot(t, r, "--", lw=1.0, label="reference")
-        ax.set_ylabel(f"{name} ({unit})")
-        ax.grid(alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8)
-    axes[-1].set_xlabel("vehicle time (s)")
-    axes[0].set_title("flat outputs, height and heading")
+        _panel(ax, f"{name} ({unit})")
+    _frame(axes, "flat outputs, height and heading")
     save(fig, "flat_outputs.png")
 
     names = SP_ATT if result.output == "attitude" else SP_ACT
@@ -123,18 +130,13 @@ def draw_figures(result: ReplayResult, out_dir: Path) -> list[Path]:
             ax.plot(t, col("log_" + name), lw=1.2, label="logged")
             if recomputed:
                 ax.plot(t, col("sp_" + name), "--", lw=1.0, label="recomputed")
-            ax.set_ylabel(name)
-            ax.grid(alpha=0.3)
-            ax.legend(loc="upper right", fontsize=8)
+            _panel(ax, name)
         if recomputed:  # the difference, where the two curves above are indistinguishable
             ax = axes[-1]
             for name in show:
                 ax.plot(t, col("sp_" + name) - col("log_" + name), lw=0.8, label=name)
-            ax.set_ylabel("recomputed - logged")
-            ax.grid(alpha=0.3)
-            ax.legend(loc="upper right", fontsize=8, ncol=len(show))
-        axes[-1].set_xlabel("vehicle time (s)")
-        axes[0].set_title(f"setpoints ({result.output}): logged vs recomputed")
+            _panel(ax, "recomputed - logged", ncol=len(show))
+        _frame(axes, f"setpoints ({result.output}): logged vs recomputed")
         save(fig, "setpoints.png")
     return paths
 
