@@ -26,7 +26,8 @@ REFUSALS: tuple[str, ...] = ("arm", "takeoff", "offboard")
 
 @dataclass(frozen=True)
 class EmulatorConfig:
-    """Everything ``slung emulate`` can be told (same names and units as its options; see docs/emulator.md).
+    """Everything ``slung emulate`` can be told (same names and units as its options, which
+    ``emulator_cli.config_from_args`` relies on; see docs/emulator.md).
 
     vehicle: a vehicle TOML path or the name of a shipped vehicle (``px4-sih``), None for the paper's.
     ekf: the estimate's error model (``sim_bridge.plant.ekf_error.EKF_PRESETS``: ``none`` = the truth, ``px4-sih``).

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import logging
 import math
@@ -181,37 +182,17 @@ def parse_signing_key(text: str | None) -> bytes | None:
 
 
 def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
-    """The typed configuration of parsed ``slung emulate`` options (the signing key read and checked)."""
-    return EmulatorConfig(
-        flavor=args.flavor,
-        vehicle=args.vehicle,
-        mavlink=tuple(args.mavlink or ()),
-        clock=args.clock,
-        lockstep_period=args.lockstep_period,
-        lockstep_grace=args.lockstep_grace,
-        attitude_model=args.attitude_model,
-        duration=args.duration,
-        tlog=args.tlog,
-        sysid=args.sysid,
-        load_sysid=args.load_sysid,
-        signing_key=parse_signing_key(args.signing_key),
-        loss_in=args.loss_in,
-        loss_out=args.loss_out,
-        latency=args.latency,
-        jitter=args.jitter,
-        fault_seed=args.fault_seed,
-        noise=args.noise,
-        noise_seed=args.noise_seed,
-        sensors=args.sensors,
-        disturbance=args.disturbance,
-        disturbance_start=args.disturbance_start,
-        disturbance_origin=args.disturbance_origin,
-        seed=args.seed,
-        est_ready=args.est_ready,
-        ekf=args.ekf,
-        refuse=tuple(args.refuse),
-        params=tuple(parse_param(text) for text in args.param),
-    )
+    """The typed configuration of parsed ``slung emulate`` options: each field is the option of its name (the
+    names are the same by :class:`EmulatorConfig`'s rule), but for the four converted here (the link URLs, the
+    signing key read and checked, the refusals, the parameters parsed)."""
+    converted = {
+        "mavlink": tuple(args.mavlink or ()),
+        "signing_key": parse_signing_key(args.signing_key),
+        "refuse": tuple(args.refuse),
+        "params": tuple(parse_param(text) for text in args.param),
+    }
+    same = {f.name: getattr(args, f.name) for f in dataclasses.fields(EmulatorConfig) if f.name not in converted}
+    return EmulatorConfig(**same, **converted)
 
 
 def parse_param(text: str) -> tuple[str, float]:
