@@ -79,6 +79,20 @@ PX4_NOISE = {
     "accel_bias": 0.05,
 }
 
+
+def _px4_preset(position_hz: float, attitude_hz: float, imu_hz: float, load_hz: float) -> Preset:
+    """A PX4-like suite at these stream rates (Hz): the latencies, jitters and noise (:data:`PX4_NOISE`) of a
+    typical small quadrotor, which the PX4 presets share; sensors at a random phase."""
+    return Preset(
+        SensorSpec(position_hz, 0.006, 0.003, PX4_NOISE["position"]),
+        SensorSpec(attitude_hz, 0.004, 0.003, PX4_NOISE["attitude"]),
+        SensorSpec(imu_hz, 0.004, 0.003, PX4_NOISE["imu"]),
+        SensorSpec(load_hz, 0.002, 0.002, PX4_NOISE["load"]),
+        PX4_NOISE["accel_bias"],
+        True,
+    )
+
+
 _PRESETS: dict[str, Preset] = {
     "ideal": Preset(
         SensorSpec(250.0, 0.0, 0.0, (0.0, 0.0, 0.0, 0.0)),
@@ -88,22 +102,8 @@ _PRESETS: dict[str, Preset] = {
         0.0,
         False,
     ),
-    "px4-typical": Preset(
-        SensorSpec(30.0, 0.006, 0.003, PX4_NOISE["position"]),
-        SensorSpec(100.0, 0.004, 0.003, PX4_NOISE["attitude"]),
-        SensorSpec(50.0, 0.004, 0.003, PX4_NOISE["imu"]),
-        SensorSpec(100.0, 0.002, 0.002, PX4_NOISE["load"]),
-        PX4_NOISE["accel_bias"],
-        True,
-    ),
-    "px4-fast": Preset(
-        SensorSpec(100.0, 0.006, 0.003, PX4_NOISE["position"]),
-        SensorSpec(250.0, 0.004, 0.003, PX4_NOISE["attitude"]),
-        SensorSpec(250.0, 0.004, 0.003, PX4_NOISE["imu"]),
-        SensorSpec(250.0, 0.002, 0.002, PX4_NOISE["load"]),
-        PX4_NOISE["accel_bias"],
-        True,
-    ),
+    "px4-typical": _px4_preset(30.0, 100.0, 50.0, 100.0),
+    "px4-fast": _px4_preset(100.0, 250.0, 250.0, 250.0),
 }
 
 PRESETS: tuple[str, ...] = tuple(_PRESETS)
