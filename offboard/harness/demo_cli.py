@@ -26,7 +26,6 @@ import argparse
 import math
 import socket
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -107,8 +106,9 @@ def free_udp_port() -> int:
 
 
 class EmulatorThread:
-    """The bundled emulator (``sim_bridge.emulator_cli.build``) running in a daemon thread. Defaults: the paper's
-    vehicle, rigid-body attitude, exact telemetry (no noise), no packet loss, no tlog, ideal sensors."""
+    """The bundled emulator running in a daemon thread (``sim_bridge.emulator_api.RunningEmulator``), configured
+    for ``slung demo`` and the tests that fly against it. Defaults: the paper's vehicle, rigid-body attitude, exact
+    telemetry (no noise), no packet loss, no tlog, ideal sensors."""
 
     def __init__(
         self,
@@ -129,7 +129,7 @@ class EmulatorThread:
         refuse: tuple[str, ...] = (),
         params: tuple[tuple[str, float], ...] = (),
     ) -> None:
-        from sim_bridge.emulator_api import EmulatorConfig, build_emulator
+        from sim_bridge.emulator_api import EmulatorConfig, RunningEmulator
         from sim_bridge.emulator_cli import parse_signing_key
 
         self.config = EmulatorConfig(
@@ -154,19 +154,13 @@ class EmulatorThread:
             refuse=refuse,
             params=params,
         )
-        self.emu, self.ap, self.link = build_emulator(self.config)
-        self.error: BaseException | None = None
-        self.thread = threading.Thread(target=self._run, name="slung-emulator", daemon=True)
-
-    def _run(self) -> None:
-        try:
-            self.emu.run(None)
-        except BaseException as exc:  # reported by stop()
-            self.error = exc
+        #: the emulator's own in-process runner (its thread, and its failure reported by stop())
+        self.running = RunningEmulator(self.config)
+        self.emu, self.ap, self.link = self.running.emulator, self.running.autopilot, self.running.link
 
     def start(self) -> EmulatorThread:
         """Start the emulator thread."""
-        self.thread.start()
+        self.running.thread.start()
         return self
 
     def set_reference_start(self, t0: float) -> None:
@@ -183,14 +177,8 @@ class EmulatorThread:
         return list(tr.state), tr.tension_n, (d[0], d[1], d[2], d[8])
 
     def stop(self) -> dict[str, Any]:
-        """Stop, join, close the link; the emulator's summary."""
-        self.emu.stop()
-        self.thread.join(timeout=10.0)
-        summary = {**self.ap.summary(), **self.emu.summary(), "link": self.link.summary()}
-        self.link.close()
-        if self.error is not None:
-            raise RuntimeError(f"the emulator failed: {self.error!r}")
-        return summary
+        """Stop, join, close the link; the emulator's summary (RuntimeError if its thread failed)."""
+        return self.running.stop()
 
 
 def default_out_dir() -> Path:
