@@ -58,6 +58,19 @@ def _mm(v: float) -> float:
     return round(float(v), 4)
 
 
+def _path(go: Any, points: np.ndarray, name: str, line: dict[str, Any]) -> Any:
+    """A still path of the view (rows of x, y, z in m, drawn as :func:`display` stores them), never hovered."""
+    return go.Scatter3d(
+        x=display(points[:, 0]),
+        y=display(points[:, 1]),
+        z=display(points[:, 2]),
+        mode="lines",
+        name=name,
+        line=line,
+        hoverinfo="skip",
+    )
+
+
 def view_figure(anim: Animation) -> tuple[Any, float]:
     """The 3D view with its frames, play / pause / speed buttons and slider; returns (figure, frame step s)."""
     import plotly.graph_objects as go
@@ -71,38 +84,12 @@ def view_figure(anim: Animation) -> tuple[Any, float]:
     path_v, path_l = veh[::stride], load[::stride]
     k0 = int(idx[0]) if len(idx) else 0
     data = [
-        go.Scatter3d(
-            x=display(path_v[:, 0]),
-            y=display(path_v[:, 1]),
-            z=display(path_v[:, 2]),
-            mode="lines",
-            name="vehicle path",
-            line={"color": "rgba(31,119,180,0.35)", "width": 2},
-            hoverinfo="skip",
-        ),
-        go.Scatter3d(
-            x=display(path_l[:, 0]),
-            y=display(path_l[:, 1]),
-            z=display(path_l[:, 2]),
-            mode="lines",
-            name="load path",
-            line={"color": "rgba(255,127,14,0.35)", "width": 2},
-            hoverinfo="skip",
-        ),
+        _path(go, path_v, "vehicle path", {"color": "rgba(31,119,180,0.35)", "width": 2}),
+        _path(go, path_l, "load path", {"color": "rgba(255,127,14,0.35)", "width": 2}),
     ]
     if anim.reference is not None and len(anim.reference):
         ref = np.asarray(anim.reference, dtype=float)[:: max(1, len(anim.reference) // MAX_POINTS)]
-        data.append(
-            go.Scatter3d(
-                x=display(ref[:, 0]),
-                y=display(ref[:, 1]),
-                z=display(ref[:, 2]),
-                mode="lines",
-                name="reference (load)",
-                line={"color": "#2ca02c", "width": 3, "dash": "dash"},
-                hoverinfo="skip",
-            )
-        )
+        data.append(_path(go, ref, "reference (load)", {"color": "#2ca02c", "width": 3, "dash": "dash"}))
     first_moving = len(data)
 
     def moving(k: int) -> list[Any]:
