@@ -71,6 +71,11 @@ def _path(go: Any, points: np.ndarray, name: str, line: dict[str, Any]) -> Any:
     )
 
 
+def _point(go: Any, p: Any, name: str, marker: dict[str, Any]) -> Any:
+    """A body of the animation at position ``p`` (x, y, z in m) in one frame, as :func:`_mm` writes it."""
+    return go.Scatter3d(x=[_mm(p[0])], y=[_mm(p[1])], z=[_mm(p[2])], mode="markers", name=name, marker=marker)
+
+
 def view_figure(anim: Animation) -> tuple[Any, float]:
     """The 3D view with its frames, play / pause / speed buttons and slider; returns (figure, frame step s)."""
     import plotly.graph_objects as go
@@ -103,22 +108,8 @@ def view_figure(anim: Animation) -> tuple[Any, float]:
                 name="cable",
                 line={"color": "#444", "width": 4},
             ),
-            go.Scatter3d(
-                x=[_mm(v[0])],
-                y=[_mm(v[1])],
-                z=[_mm(v[2])],
-                mode="markers",
-                name="vehicle",
-                marker={"size": 7, "color": "#1f77b4", "symbol": "square"},
-            ),
-            go.Scatter3d(
-                x=[_mm(q[0])],
-                y=[_mm(q[1])],
-                z=[_mm(q[2])],
-                mode="markers",
-                name="load",
-                marker={"size": 6, "color": "#ff7f0e"},
-            ),
+            _point(go, v, "vehicle", {"size": 7, "color": "#1f77b4", "symbol": "square"}),
+            _point(go, q, "load", {"size": 6, "color": "#ff7f0e"}),
         ]
 
     data += moving(k0)
