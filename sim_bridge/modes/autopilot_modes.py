@@ -189,8 +189,7 @@ class ModeLogic:
                     self.q_sp = self._q_now(x)
                     return
                 if sk == "pos":
-                    yaw = self.sp_yaw if self.sp_yaw is not None else self.hold_yaw
-                    self._position(x, self.sp_pos, self.sp_vel, yaw, dt, on_ground)
+                    self._fly_position_setpoint(x, dt, on_ground)
                     return
         if kind == "guided":
             self._guided(x, dt, on_ground)
@@ -308,8 +307,7 @@ class ModeLogic:
             self._althold(x, self.z_target, 0.0, self.hold_yaw, dt, on_ground)
             return
         if sub == "pos":
-            yaw = self.sp_yaw if self.sp_yaw is not None else self.hold_yaw
-            self._position(x, self.sp_pos, self.sp_vel, yaw, dt, on_ground)
+            self._fly_position_setpoint(x, dt, on_ground)
             return
         if sub == "takeoff":
             self._position(x, self.hold_pos, (0.0, 0.0, 0.0), self.hold_yaw, dt, False)
@@ -318,6 +316,12 @@ class ModeLogic:
                 self._hold_altitude(self.takeoff_alt)
             return
         self._position(x, self.hold_pos, (0.0, 0.0, 0.0), self.hold_yaw, dt, on_ground)
+
+    def _fly_position_setpoint(self, x: Sequence[float], dt: float, on_ground: bool) -> None:
+        """The position setpoint received (PX4 OFFBOARD, ArduPilot GUIDED), its velocity as feed-forward, at its yaw
+        or, when it gives none, at the heading held."""
+        yaw = self.sp_yaw if self.sp_yaw is not None else self.hold_yaw
+        self._position(x, self.sp_pos, self.sp_vel, yaw, dt, on_ground)
 
     def _offboard_lost(self) -> None:
         """PX4 offboard-loss failsafe: COM_OBL_RC_ACT."""
