@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 import sys
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -110,22 +110,13 @@ class SweepConfig:
         return 1.0 + self.move_time_s + self.hold_s
 
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "scenario": self.scenario,
-            "move_time_s": self.move_time_s,
-            "distance_m": self.distance_m,
-            "hold_s": self.hold_s,
-            "estimator": self.estimator,
-            "sensors": self.sensors,
-            "actuators": self.actuators,
-            "engine": self.engine,
-            "seed": self.seed,
-            "vehicle_file": self.vehicle_file,
-            "parameters": {
-                k: {kk: vv for kk, vv in vars(d).items() if vv is not None} for k, d in self.parameters.items()
-            },
-            "success": dict(self.success),
+        """Every field by its name, in order; the distributions without their unset bounds, copies of the dicts."""
+        out: dict[str, Any] = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["parameters"] = {
+            k: {kk: vv for kk, vv in vars(d).items() if vv is not None} for k, d in self.parameters.items()
         }
+        out["success"] = dict(self.success)
+        return out
 
 
 #: the paths a sweep's runs can be flown by (see the module docstring)
