@@ -16,10 +16,10 @@ One SITL boot flies, one after the other:
    sensor: the swing from the IMU alone) hovers where it is for ``--hold`` s and lands.
 
 Both are judged on the DataFlash truth (SLUP, the payload's own position; never fed to the filter) from the same
-start amplitude: **A0** the swing's envelope when slung's control starts (the largest swing over one pendulum
-period from there); for stock the first time its envelope is down to that A0. **to 1°** the time from there until
-the envelope stays below 1 deg; the envelope at +10 / +20 / +30 s; **tilt** ArduPilot's ATT over slung's control
-against the tilt limit slung announced (its ``events.json``).
+start amplitude: **A0** the swing's amplitude when slung's control starts (SLUP's angle and rate, as an undamped
+pendulum's); for stock the first time its envelope (the largest swing over the next pendulum period) is down to A0.
+**to 1°** the time from there until the envelope stays below 1 deg; the envelope at +10 / +20 / +30 s; **tilt**
+ArduPilot's ATT over slung's control against the tilt limit slung announced (its ``events.json``).
 
     flock /tmp/ardupilot-instance0.lock python bench/ardupilot_takeover.py [--line 5] [--move 5] [--hold 40]
         [--settle 2] [--slung-arg=--law --slung-arg=torque] [--out DIR]
@@ -44,7 +44,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from estimators.model.vehicle import load_vehicle  # noqa: E402 - after the path set-up
+from estimators.model.cable import swing_amplitude  # noqa: E402 - after the path set-up
+from estimators.model.vehicle import load_vehicle  # noqa: E402
 from offboard.logs.timeseries_file import read_table  # noqa: E402
 from sim_bridge.sitl.ardupilot_dataflash import ArduPilotFlightLog, read_dataflash  # noqa: E402
 from sim_bridge.sitl.ardupilot_guided import GUIDED, GuidedLink  # noqa: E402
@@ -94,17 +95,30 @@ def decay(t: np.ndarray, env: np.ndarray, t0: float, a0: float, after_peak: bool
     return out
 
 
+def amplitude_at(log: ArduPilotFlightLog, t: float, w: float) -> float:
+    """The swing's amplitude (rad) at the first SLUP sample from ``t`` (boot s): the planar angles and rates of the
+    payload's position and velocity relative to the vehicle, through ``estimators.model.cable.swing_amplitude`` with
+    the pendulum's frequency ``w`` (rad/s). Not the envelope over the next period: a take-over that damps the swing
+    within its first period would lower that envelope, and with it the amplitude it is judged from."""
+    s = log.slup.window(t, math.inf)
+    pn, pe, pd, vn, ve, vd = (float(s[k][0]) for k in ("pn", "pe", "pd", "vn", "ve", "vd"))
+    qy, qx = pn * pn + pd * pd, pe * pe + pd * pd
+    rate_y, rate_x = (pd * vn - pn * vd) / qy, (pd * ve - pe * vd) / qx  # d/dt atan2(p, pd)
+    return swing_amplitude(math.atan2(pe, pd), math.atan2(pn, pd), rate_x, rate_y, w * w)
+
+
 def judge(
     log: ArduPilotFlightLog, slung_window: tuple[float, float], stock_window: tuple[float, float], period: float
 ) -> tuple[dict[str, float], dict[str, float], float]:
-    """slung's and stock's :func:`decay` from slung's start amplitude A0 (rad), each on the envelope of its own
-    window only (boot s), so that what follows a window (the move back, the landing) does not enter it."""
+    """slung's and stock's :func:`decay` from the swing's amplitude when slung's control starts, A0 (rad,
+    :func:`amplitude_at`), each on the envelope of its own window only (boot s), so that what follows a window (the
+    move back, the landing) does not enter it."""
     out = []
     for w0, w1 in (slung_window, stock_window):
         sw = log.swing(w0, w1)
         out.append((sw.t, envelope(sw.t, sw["swing"], period)))
     (ts, es), (tk, ek) = out
-    a0 = float(es[0])
+    a0 = amplitude_at(log, slung_window[0], 2.0 * math.pi / period)
     return decay(ts, es, slung_window[0], a0), decay(tk, ek, stock_window[0], a0, after_peak=True), a0
 
 
