@@ -141,7 +141,8 @@ def test_a_swinging_load_taken_over_on_a_long_line_is_damped_not_chased(
         return float(np.degrees(true.max())), float(np.degrees(err.max()))
 
     # 7 Dec 2026: 10 m 0.50 / 0.95 deg from 10 s, 30 m 1.26 / 0.62; with the 1 m densities 0.97 / 2.21 and
-    # 12.8 / 18.4
+    # 12.8 / 18.4; 8 Dec 2026, with the swing-rate cap on the poles: 0.45 / 0.91 and 1.57 / 0.80 (30 m from 20 s:
+    # 0.30 / 0.38)
     assert worst(10.0)[1] < 1.5, worst(10.0)
     swing, err = worst(20.0)
     assert swing < 1.0 and err < 1.3, (swing, err)
