@@ -5,7 +5,10 @@ One SITL boot flies, one after the other:
 
 0. **slung from rest**: GUIDED take-off to ``line + 2`` m, a hold until the load settles, then ``slung fly
    --no-takeoff`` hovers there for 20 s and hands back to the autopilot's hold (BRAKE);
-1. **stock**: GUIDED again, a hold until the load settles, one position target ``--move`` m
+0b. **slung's own move** (``--slung-move`` m north, default 10; 0 skips it): ``slung fly --no-takeoff`` from the
+   same point, rest to rest in the longer of ``distance / 1.25`` s and 1.5 pendulum periods, then a hold of a
+   period and 10 s, handed back to BRAKE: its peak swing, the swing over the hold's last period, the ATT tilt;
+1. **stock**: GUIDED again, back to the take-off point, a hold until the load settles, one position target ``--move`` m
    north (``sim_bridge.sitl.ardupilot_guided``: ArduPilot's own position controller, no swing damping), then the
    hold at the goal for ``--hold`` s: how stock GUIDED alone damps the swing its move left;
 2. **slung**: the same move back south with the same stock link, and ``--settle`` s after the target, with the load
@@ -13,15 +16,16 @@ One SITL boot flies, one after the other:
    sensor: the swing from the IMU alone) hovers where it is for ``--hold`` s and lands.
 
 Both are judged on the DataFlash truth (SLUP, the payload's own position; never fed to the filter) from the same
-start amplitude: **A0** the swing's envelope when slung's control starts (the largest swing over one pendulum
-period from there); for stock the first time its envelope is down to that A0. **to 1°** the time from there until
-the envelope stays below 1 deg; the envelope at +10 / +20 / +30 s; **tilt** ArduPilot's ATT over slung's control
-against the tilt limit slung announced (its ``events.json``).
+start amplitude: **A0** the swing's amplitude when slung's control starts (SLUP's angle and rate, as an undamped
+pendulum's); for stock the first time its envelope (the largest swing over the next pendulum period) is down to A0.
+**to 1°** the time from there until the envelope stays below 1 deg; the envelope at +10 / +20 / +30 s; **tilt**
+ArduPilot's ATT over slung's control against the tilt limit slung announced (its ``events.json``).
 
     flock /tmp/ardupilot-instance0.lock python bench/ardupilot_takeover.py [--line 5] [--move 5] [--hold 40]
         [--settle 2] [--slung-arg=--law --slung-arg=torque] [--out DIR]
 
-About 45 s of boot, 30 s of take-off and settling, the 20 s hover, then twice ``--hold`` (5 min in all on 5 m).
+About 45 s of boot, 30 s of take-off and settling, the 20 s hover, slung's move, then twice ``--hold`` (5-6 min in
+all on 5-10 m, 7 min on 30 m).
 """
 
 from __future__ import annotations
@@ -40,7 +44,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from estimators.model.vehicle import load_vehicle  # noqa: E402 - after the path set-up
+from estimators.model.cable import swing_amplitude  # noqa: E402 - after the path set-up
+from estimators.model.vehicle import load_vehicle  # noqa: E402
 from offboard.logs.timeseries_file import read_table  # noqa: E402
 from sim_bridge.sitl.ardupilot_dataflash import ArduPilotFlightLog, read_dataflash  # noqa: E402
 from sim_bridge.sitl.ardupilot_guided import GUIDED, GuidedLink  # noqa: E402
@@ -90,30 +95,53 @@ def decay(t: np.ndarray, env: np.ndarray, t0: float, a0: float, after_peak: bool
     return out
 
 
+def amplitude_at(log: ArduPilotFlightLog, t: float, w: float) -> float:
+    """The swing's amplitude (rad) at the first SLUP sample from ``t`` (boot s): the planar angles and rates of the
+    payload's position and velocity relative to the vehicle, through ``estimators.model.cable.swing_amplitude`` with
+    the pendulum's frequency ``w`` (rad/s). Not the envelope over the next period: a take-over that damps the swing
+    within its first period would lower that envelope, and with it the amplitude it is judged from."""
+    s = log.slup.window(t, math.inf)
+    pn, pe, pd, vn, ve, vd = (float(s[k][0]) for k in ("pn", "pe", "pd", "vn", "ve", "vd"))
+    qy, qx = pn * pn + pd * pd, pe * pe + pd * pd
+    rate_y, rate_x = (pd * vn - pn * vd) / qy, (pd * ve - pe * vd) / qx  # d/dt atan2(p, pd)
+    return swing_amplitude(math.atan2(pe, pd), math.atan2(pn, pd), rate_x, rate_y, w * w)
+
+
 def judge(
     log: ArduPilotFlightLog, slung_window: tuple[float, float], stock_window: tuple[float, float], period: float
 ) -> tuple[dict[str, float], dict[str, float], float]:
-    """slung's and stock's :func:`decay` from slung's start amplitude A0 (rad), each on the envelope of its own
-    window only (boot s), so that what follows a window (the move back, the landing) does not enter it."""
+    """slung's and stock's :func:`decay` from the swing's amplitude when slung's control starts, A0 (rad,
+    :func:`amplitude_at`), each on the envelope of its own window only (boot s), so that what follows a window (the
+    move back, the landing) does not enter it."""
     out = []
     for w0, w1 in (slung_window, stock_window):
         sw = log.swing(w0, w1)
         out.append((sw.t, envelope(sw.t, sw["swing"], period)))
     (ts, es), (tk, ek) = out
-    a0 = float(es[0])
+    a0 = amplitude_at(log, slung_window[0], 2.0 * math.pi / period)
     return decay(ts, es, slung_window[0], a0), decay(tk, ek, stock_window[0], a0, after_peak=True), a0
 
 
 def fly_slung(
-    url: str, vehicle: Path, height: float, hold: float, out: Path, extra: list[str], end: str = "land"
+    url: str,
+    vehicle: Path,
+    height: float,
+    hold: float,
+    out: Path,
+    extra: list[str],
+    end: str = "land",
+    waypoints: list[tuple[float, float]] | None = None,
 ) -> dict[str, object]:
-    """``slung fly --no-takeoff`` hovering where the vehicle is for ``hold`` s, then ``end`` (land, hold); its end,
-    control window (boot s), loop rate and announced tilt limit (rad)."""
+    """``slung fly --no-takeoff`` hovering where the vehicle is for ``hold`` s (or through ``waypoints``, (t s, north
+    m) at ``height``), then ``end`` (land, hold); its end, control window (boot s), loop rate and announced tilt
+    limit (rad)."""
     out.mkdir(parents=True, exist_ok=True)
     traj = out / "trajectory.toml"
+    points = waypoints or [(0.0, 0.0), (hold, 0.0)]
     traj.write_text(
-        "".join(f"[[waypoint]]\nt = {t:g}\nx = 0.0\ny = 0.0\nz = {height:g}\n" for t in (0.0, hold)), encoding="utf-8"
+        "".join(f"[[waypoint]]\nt = {t:g}\nx = {x:g}\ny = 0.0\nz = {height:g}\n" for t, x in points), encoding="utf-8"
     )
+    hold = points[-1][0]
     cmd = [sys.executable, "-m", "offboard.cli", "fly", "--connect", url, "--vehicle", str(vehicle)]
     cmd += ["--trajectory", str(traj), "--no-takeoff", "--no-figures", "--end", end, "--stale-limit", "0.25"]
     cmd += ["--out", str(out / "fly"), *extra]
@@ -138,17 +166,43 @@ def fly_slung(
     }
 
 
+def slung_move_times(distance: float, period: float) -> tuple[float, float]:
+    """(arrival, end) of slung's own move (s after its start): a rest-to-rest move of ``distance`` m in the longer of
+    ``distance / 1.25`` s and one and a half pendulum periods (a move shorter than the swing's period asks a long
+    line's load for tilts beyond the limit), then a hold of a period and 10 s, over which the residual swing shows."""
+    t_move = max(distance / 1.25, 1.5 * period)
+    return t_move, t_move + period + 10.0
+
+
+def move_result(log: ArduPilotFlightLog, res: dict[str, object], period: float) -> dict[str, object]:
+    """slung's own move judged on the DataFlash truth: its end, the peak swing, the swing's envelope over the last
+    pendulum period of the hold (the residual), ArduPilot's ATT tilt and the tilt limit slung announced (deg)."""
+    out: dict[str, object] = {"end": res["end"]}
+    if "t0" not in res:
+        return out
+    t0, t1 = float(res["t0"]), float(res["t1"])  # type: ignore[arg-type]
+    sw = log.swing(t0, t1)
+    if len(sw):
+        tail = sw["swing"][sw.t >= t1 - period]
+        out["peak_deg"] = math.degrees(float(np.max(sw["swing"])))
+        out["residual_deg"] = math.degrees(float(np.max(tail))) if len(tail) else math.nan
+    out["att_tilt_deg"] = math.degrees(log.max_tilt(t0, t1))
+    out["tilt_limit_deg"] = math.degrees(float(res["tilt_limit_rad"]))  # type: ignore[arg-type]
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--line", type=float, default=5.0, help="the payload's line, m (default 5)")
     p.add_argument("--move", type=float, default=5.0, help="the stock move that sets the load swinging, m")
     p.add_argument("--hold", type=float, default=40.0, help="stock's hold and slung's hover after the move, s")
     p.add_argument("--settle", type=float, default=2.0, help="from the stock move back to slung's start, s")
+    p.add_argument("--slung-move", type=float, default=10.0, help="slung's own move after the hover, m (0: none)")
     p.add_argument("--slung-arg", action="append", default=[], help="one more argument for slung fly (repeatable)")
     p.add_argument("--out", type=Path, help="where the flights and takeover.json go (default a temporary folder)")
     a = p.parse_args(argv)
-    if not (0.5 <= a.line <= 30.0 and a.move > 0 and a.hold > 0 and a.settle >= 0):
-        raise SystemExit("--line 0.5..30 m, --move and --hold > 0, --settle >= 0")
+    if not (0.5 <= a.line <= 30.0 and a.move > 0 and a.hold > 0 and a.settle >= 0 and a.slung_move >= 0):
+        raise SystemExit("--line 0.5..30 m, --move and --hold > 0, --settle and --slung-move >= 0")
     out = a.out or Path(tempfile.mkdtemp(prefix="slung-ardupilot-takeover-"))
     out.mkdir(parents=True, exist_ok=True)
     veh = out / "vehicle.toml"
@@ -162,7 +216,8 @@ def main(argv: list[str] | None = None) -> int:
         link = GuidedLink(sitl.connection_url)
         try:
             link.takeoff(height, timeout_s=60.0)
-            start = (link.ned[0], link.ned[1], -height)
+            home = (link.ned[0], link.ned[1])
+            start = (home[0], home[1], -height)
             link.go_to(start)
             link.pump(max(8.0, 2.0 * period))
         finally:
@@ -170,11 +225,18 @@ def main(argv: list[str] | None = None) -> int:
         # slung from rest: a hover of REST_HOVER_S where stock left the vehicle, handed back to the autopilot's hold
         rest = fly_slung(sitl.connection_url, veh, height, REST_HOVER_S, out / "rest", a.slung_arg, end="hold")
         print(f"slung from rest: {rest['end']}", flush=True)
+        moved: dict[str, object] = {}
+        if a.slung_move > 0:  # slung's own move north from the reference's origin, then a hold at its end
+            t_move, t_end = slung_move_times(a.slung_move, period)
+            pts = [(0.0, 0.0), (t_move, a.slung_move), (t_end, a.slung_move)]
+            moved = fly_slung(sitl.connection_url, veh, height, t_end, out / "move", a.slung_arg, "hold", pts)
+            moved["t_move"] = t_move
+            print(f"slung, {a.slung_move:g} m in {t_move:.1f} s: {moved['end']}", flush=True)
         link = GuidedLink(sitl.connection_url)
         try:
             link.set_mode(GUIDED)
             link.pump(0.5)
-            start = (link.ned[0], link.ned[1], -height)
+            start = (home[0], home[1], -height)  # back where slung's references start (after its move, stock's)
             link.go_to(start)
             link.pump(max(8.0, 2.0 * period))
             link.pump(0.05)
@@ -216,6 +278,7 @@ def main(argv: list[str] | None = None) -> int:
         "tilt_limit_deg": math.degrees(float(res["tilt_limit_rad"])),  # type: ignore[arg-type]
         "stock_peak_deg": math.degrees(float(np.max(s[(t >= t_stock) & (t <= stock_end)]))),
         "rest": rest_fig,
+        "slung_move": move_result(log, moved, period) if moved else None,
         "stock_window": [t_stock, stock_end],
         "slung_window": [t0, t1],
     }
@@ -225,6 +288,15 @@ def main(argv: list[str] | None = None) -> int:
             f"{rest_fig['swing_max_deg']:.2f}°, ATT tilt {rest_fig['att_tilt_deg']:.1f}° / "
             f"{rest_fig['tilt_limit_deg']:.1f}°"
         )
+    mv = result["slung_move"]
+    if isinstance(mv, dict) and "peak_deg" in mv:
+        print(
+            f"slung, {a.slung_move:g} m in {float(moved['t_move']):.1f} s: {mv['end']}, "  # type: ignore[arg-type]
+            f"peak swing {mv['peak_deg']:.1f}°, residual {mv['residual_deg']:.2f}° (the last period), "
+            f"ATT tilt {mv['att_tilt_deg']:.1f}° / {mv['tilt_limit_deg']:.1f}°"
+        )
+    elif isinstance(mv, dict):
+        print(f"slung, {a.slung_move:g} m: {mv['end']}")
     print(
         f"\n1.2 kg on {a.line:g} m (period {period:.1f} s), from the swing at slung's take-over A0 "
         f"{result['a0_deg']:.1f} deg (stock's own move peaked at {result['stock_peak_deg']:.1f} deg):"

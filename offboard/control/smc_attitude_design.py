@@ -30,6 +30,14 @@ CANDIDATES: tuple[tuple[float, float], ...] = tuple(
 BANDWIDTH_FACTORS = (0.5, 1.0, 2.0)
 RATE_FACTORS = (0.5, 1.0, 2.0)
 DELAYS_S = (0.0, 0.015, 0.03)
+#: the most commanded tilt rate one rad/s of error in the swing-rate estimate may ask for (rad/s per rad/s; with a
+#: load). The law reads the swing rate a' in ``F' = p' + l a'`` and ``F''' = -g a'``, and both reach its tilt-rate
+#: command through ``(k1 l - k3 g + reach (k2 l - k4 g)) / c + 1`` (:func:`swing_rate_gain`): 0.5-2.7 on lines up
+#: to 2 m whatever the poles the inner loop allows (every shipped vehicle), but with ArduPilot's attitude loop (wn_F
+#: 2.25 1/s on every line) 45 on 5 m, 231 on 10 m, 1030 on 20 m: on ArduPilot SITL the 10 m hover from rest asked
+#: for the tilt limit within 0.22 s on the estimate's first errors (the IMU 25 ms behind the attitude at a tilt
+#: onset) and ended on the swing watchdog (docs/deploy.md section 3a). 4: above every short line's.
+SWING_RATE_GAIN_MAX = 4.0
 
 
 def surface_coefficients(wn: float, zeta: float, order: int) -> list[float]:
@@ -111,6 +119,39 @@ def closed_loop_abscissa(
     return float(np.max(np.linalg.eigvals(A[np.ix_(keep, keep)]).real))
 
 
+def swing_rate_gain(wn: float, reach: float, zeta: float, g: float, ell: float, w_swing: float) -> float:
+    """The attitude-level law's commanded tilt rate per rad/s of error in its swing-rate estimate (rad/s per rad/s)
+    with surface poles ``wn`` (damping ``zeta``) and reaching pole ``reach`` (1/s), on a line of ``ell`` m whose
+    pendulum swings at ``w_swing`` rad/s: ``|(k1 l - k3 g + reach (k2 l - k4 g)) / c + 1|``, ``c = g w_swing^2``
+    (``offboard.control.smc_attitude``: the error enters ``e' = l a'``, ``e''' = -g a'`` and the ``- a'`` of the
+    commanded tilt rate; inside the boundary layer the reaching terms add to ``-reach sigma``)."""
+    k = surface_coefficients(wn, zeta, 5)
+    c = g * w_swing * w_swing
+    return abs((k[1] * ell - k[3] * g + reach * (k[2] * ell - k[4] * g)) / c + 1.0)
+
+
+def swing_rate_cap(
+    reach_ratio: float, zeta: float, g: float, ell: float, w_swing: float, gain_max: float = SWING_RATE_GAIN_MAX
+) -> float:
+    """The largest ``wn`` (1/s) whose :func:`swing_rate_gain` with ``reach = reach_ratio wn`` is at most ``gain_max``
+    (rad/s per rad/s). Beyond the pendulum's frequency the gain grows as ``(wn / w_swing)^4`` whatever the line
+    (``l / c = (M / M_t) / w_swing^2``), so the cap is a multiple of ``w_swing`` (1.0-1.2 for the ArduPilot SITL
+    quad); searched down from ``20 w_swing`` in steps, then refined by bisection."""
+
+    def gain(wn: float) -> float:
+        return swing_rate_gain(wn, reach_ratio * wn, zeta, g, ell, w_swing)
+
+    step = w_swing / 20.0
+    hi = 20.0 * w_swing
+    while hi > step and gain(hi) > gain_max:
+        hi -= step
+    lo, hi = hi, hi + step  # gain(lo) <= gain_max < gain(hi), or lo is the smallest step
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if gain(mid) <= gain_max else (lo, mid)
+    return lo
+
+
 @lru_cache(maxsize=64)
 def robust_horizontal_poles(
     with_load: bool,
@@ -122,13 +163,23 @@ def robust_horizontal_poles(
     rate_bandwidth: float,
     zeta: float = 1.0,
     wn_cap: float = float("inf"),
+    swing_rate_gain_max: float = SWING_RATE_GAIN_MAX,
 ) -> tuple[float, float, bool]:
     """(wn_F, reach_F, robust): the first candidate whose loop is stable, with a margin of 5 % of wn_F, over every
     attitude-loop and rate-loop bandwidth factor and delay, and True; the slowest candidate and False if none is
     (a load swinging faster than the autopilot's attitude loop can follow: the attitude-level law cannot damp it
-    robustly, use the torque-level law)."""
-    for wr, lr in CANDIDATES:
+    robustly, use the torque-level law). With a load each candidate's wn_F is also capped so that an error in the
+    swing-rate estimate reaches the tilt-rate command at most ``swing_rate_gain_max`` times (:func:`swing_rate_cap`:
+    on a long line the pendulum, not the attitude loop, bounds the law's bandwidth)."""
+
+    def capped(wr: float, lr: float) -> float:
         wn = min(wr * w_i, wn_cap)
+        if with_load:
+            wn = min(wn, swing_rate_cap(lr, zeta, g, ell, w_swing, swing_rate_gain_max))
+        return wn
+
+    for wr, lr in CANDIDATES:
+        wn = capped(wr, lr)
         reach = lr * wn
         worst = max(
             closed_loop_abscissa(
@@ -141,7 +192,7 @@ def robust_horizontal_poles(
         if worst < -0.05 * wn:
             return wn, reach, True
     wr, lr = CANDIDATES[-1]
-    wn = min(wr * w_i, wn_cap)
+    wn = capped(wr, lr)
     return wn, lr * wn, False
 
 
@@ -299,6 +350,7 @@ __all__ = [
     "PX4_ATTITUDE_P",
     "PX4_YAW_P",
     "RATE_FACTORS",
+    "SWING_RATE_GAIN_MAX",
     "AttitudeGains",
     "InnerLoop",
     "closed_loop_abscissa",
@@ -306,4 +358,6 @@ __all__ = [
     "robust_gains_exist",
     "robust_horizontal_poles",
     "surface_coefficients",
+    "swing_rate_cap",
+    "swing_rate_gain",
 ]
