@@ -147,12 +147,8 @@ class _Trial:
         return prof if prof.peak_speed * self.distance <= self.max_speed * (1 + 1e-6) else None
 
     def quick(self, shape: MoveProfile) -> str:
-        """'' when the nominal demands of ``shape`` are within the planner's budgets, else the first reason."""
-        if shape.peak_acceleration * self.distance > self.max_accel:
-            return (
-                f"peak acceleration {shape.peak_acceleration * self.distance:.3g} m/s^2 above the limit "
-                f"{self.max_accel:g}"
-            )
+        """'' when the nominal demands of ``shape`` are within the planner's budgets, else the first reason (the
+        acceleration limit apart: it falls as the ramps shorten, where the budgets rise)."""
         ref = move_reference(self.start, self.goal, shape, 0.0, 0.0)
         n = max(50, int(shape.duration * QUICK_RATE_HZ))
         ts = [shape.duration * i / n for i in range(n + 1)]
@@ -180,11 +176,20 @@ class _Trial:
     def best(self, T: float) -> tuple[MoveProfile | None, str]:
         """The shortest ramp that passes for time T (bisection on the ramp; the demands fall as it grows), or
         (None, why the longest ramp fails)."""
-        longest = self.shape(T, 0.25 * T)
+        lo, hi = 0.01 * T, 0.25 * T
+        if self.shape(T, hi) is None:
+            # a speed limit: a cruise fits only beside short enough ramps; the longest that leaves room for one
+            if self.shape(T, lo) is None:
+                return None, "no profile within the speed limit"
+            a, b = lo, hi
+            for _ in range(20):
+                mid = 0.5 * (a + b)
+                a, b = (mid, b) if self.shape(T, mid) is not None else (a, mid)
+            hi = a
+        longest = self.shape(T, hi)
         why = "no profile within the speed limit" if longest is None else self.quick(longest)
         if longest is None or why:
             return None, why
-        lo, hi = 0.01 * T, 0.25 * T
         cand = self.shape(T, lo)
         if cand is not None and not self.quick(cand):
             hi = lo
@@ -198,6 +203,11 @@ class _Trial:
                     lo = mid
         shape = self.shape(T, hi)
         assert shape is not None
+        if shape.peak_acceleration * self.distance > self.max_accel:
+            return None, (
+                f"peak acceleration {shape.peak_acceleration * self.distance:.3g} m/s^2 above the limit "
+                f"{self.max_accel:g} m/s^2"
+            )
         why = self.full(shape)
         return (shape, "") if not why else (None, why)
 
