@@ -159,27 +159,14 @@ def test_a_move_flies_against_the_emulator_near_the_bound(tmp_path: Path) -> Non
     quad with 1.2 kg on 1 m), judged on the emulator's truth: it completes, the vehicle stays within 0.2 m of the
     goal no later than 0.5 s after the asked time, and the true swing peaks within 2x the bound atan(4D/(gT^2)) at
     that arrival (1.1x on 2026-12-08) and is under 1.5 deg 2 s after it."""
-    from offboard.flight.fly_cli import configure as fly_configure
-    from offboard.flight.fly_cli import fly
-    from offboard.harness.demo_cli import EmulatorThread, free_udp_port
+    from emulator_helpers import fly_against_emulator
+
     from offboard.logs.timeseries_file import read_table
 
-    port = free_udp_port()
-    p = argparse.ArgumentParser()
-    fly_configure(p)
-    args = p.parse_args(
-        [
-            *("--connect", f"udpin:127.0.0.1:{port}", "--vehicle", "ardupilot-sitl-quad", "--move", "3,0,2"),
-            *("--arrive-by", "4", "--duration", "10", "--no-figures", "--out", str(tmp_path / "f")),
-        ]
+    argv = ["--vehicle", "ardupilot-sitl-quad", "--move", "3,0,2", "--arrive-by", "4", "--duration", "10"]
+    m, folder = fly_against_emulator(
+        [*argv, "--no-figures", "--out", str(tmp_path / "f")], "ardupilot", "ardupilot-sitl-quad"
     )
-    emu = EmulatorThread("ardupilot", port, lockstep=True, period=0.004, vehicle="ardupilot-sitl-quad").start()
-    try:
-        m, folder = fly(
-            args, lockstep=True, truth_probe=emu.truth, quiet=True, on_reference_start=emu.set_reference_start
-        )
-    finally:
-        emu.stop()
     assert m["flight"]["ended_by"] == "completed"
     assert (folder / "move.toml").is_file() and json_path_trajectory(folder).endswith("move.toml")
     table = read_table(folder / "timeseries.slts")
