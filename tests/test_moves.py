@@ -61,17 +61,17 @@ def test_rest_to_rest_ends_and_smoothness(ramp: float, cruise: float) -> None:
         assert np.max(np.abs(fd[2:-2] - d[2:-2, k + 1])) < tol, k
 
 
-@pytest.mark.parametrize("frac", [0.01, 0.05, 0.125, 0.25])
+@pytest.mark.parametrize("frac", [0.01, 0.05, 0.125, 0.25, 0.4])
 def test_peak_acceleration_against_the_bound(frac: float) -> None:
     """The peak acceleration, sampled, is the profile's ``peak_acceleration`` times D, never below 4D/T^2, and
-    tends to it as the ramps shorten (1.31x at T/8, 1.83x at T/4: docs/references.md)."""
+    tends to it as the ramps shorten (1.31x at T/8, 1.83x at T/4, 2.70x at 0.4 T, overlapping: docs/references.md)."""
     T, D = 2.5, 3.0
     shape = move_profile(T, frac * T)
     m = Move(0.0, D, 0.0, shape)
     acc = _derivatives(m, np.linspace(0.0, T, 20001), 3)[:, 2]
     peak = float(np.abs(acc).max())
-    assert peak == pytest.approx(shape.peak_acceleration * D, rel=1e-6)
-    assert shape.peak_over_bound == pytest.approx(peak * T**2 / (4.0 * D), rel=1e-6)
+    assert peak == pytest.approx(shape.peak_acceleration * D, rel=1e-6 if frac <= 0.25 else 1e-4)  # overlap: sampled
+    assert shape.peak_over_bound == pytest.approx(peak * T**2 / (4.0 * D), rel=1e-4)
     assert shape.peak_over_bound >= 1.0
     assert shape.peak_over_bound < 1.0 + 2.6 * frac + 10 * frac**2  # the ramps' lost area, ~ 1 / (1 - 2 tau / T)
     if frac == 0.01:

@@ -2,7 +2,8 @@
 before flight: the ramps of the smoothed bang-bang (``offboard.control.reference_moves``) as short as the vehicle
 allows, and the fastest feasible time proposed when the asked one cannot be flown.
 
-For a move time T the planner takes the shortest acceleration ramp ``tau`` (``tau <= T / 4``) whose nominal demands,
+For a move time T the planner takes the shortest acceleration ramp ``tau`` (up to :data:`LONGEST_RAMP` T) whose
+nominal demands,
 mapped through the flatness chain by the pre-flight check (``offboard.control.feasibility``), keep
 
 - the tilt rate within :data:`TILT_RATE_BUDGET` (rad/s): 80 % of the attitude-level law's tilt-rate clip
@@ -42,10 +43,14 @@ TILT_RATE_BUDGET = TILT_SHARE * AttitudeParams.tilt_rate_max
 #: emulator's ArduPilot flavour saturated through the move (3 m in 4 s: 0.3 m overshoot; the waypoints 0.03 m)
 TILT_ACCEL_BUDGET = TILT_RATE_BUDGET * InnerLoop.attitude_bandwidth
 G = 9.80665  # m/s^2, for the printed swing only
+#: the longest ramp the planner tries, a share of the move's time: beyond T / 4 the ramps overlap and the profile
+#: turns from the rounded bang-bang (1.83x the bound at T / 4) towards one smooth lobe (2.90x at 0.45 T, 3.11x at
+#: T / 2); the tilt rate falls with longer ramps up to about 0.45 T and rises again after (3 m in 3.5 s)
+LONGEST_RAMP = 0.45
 #: the planner's resolution on the move time, s
 TIME_RESOLUTION = 0.02
 #: samples per second of the planner's quick pass (the final check is the full one's grid)
-QUICK_RATE_HZ = 200.0
+QUICK_RATE_HZ = 100.0
 #: the longest move the planner searches, s
 LONGEST_MOVE_S = 120.0
 
@@ -176,7 +181,7 @@ class _Trial:
     def best(self, T: float) -> tuple[MoveProfile | None, str]:
         """The shortest ramp that passes for time T (bisection on the ramp; the demands fall as it grows), or
         (None, why the longest ramp fails)."""
-        lo, hi = 0.01 * T, 0.25 * T
+        lo, hi = 0.01 * T, LONGEST_RAMP * T
         if self.shape(T, hi) is None:
             # a speed limit: a cruise fits only beside short enough ramps; the longest that leaves room for one
             if self.shape(T, lo) is None:
@@ -194,7 +199,7 @@ class _Trial:
         if cand is not None and not self.quick(cand):
             hi = lo
         else:
-            for _ in range(14):
+            for _ in range(10):
                 mid = 0.5 * (lo + hi)
                 s = self.shape(T, mid)
                 if s is not None and not self.quick(s):
@@ -231,7 +236,7 @@ def plan_move(
     arrive_by: the move's time, s (the load at the goal, at rest, ``arrive_by`` s after ``t_start``); None: the
     fastest the vehicle allows within ``max_accel`` (m/s^2) and ``max_speed`` (m/s). A time that cannot be flown
     raises :class:`TrajectoryError` naming the reason and the fastest feasible time, unless ``force`` (then the
-    asked time is flown with the gentlest ramps, T / 4, and ``feasible`` is False). ``t_start``: rest before, s;
+    asked time is flown with the longest ramps, and ``feasible`` is False). ``t_start``: rest before, s;
     ``hold``: rest at the goal after, s.
     """
     a, b = _point("start", start), _point("goal", goal)
@@ -271,7 +276,7 @@ def plan_move(
         assert shape is not None
         return done(shape, True, fastest, "")
     if force:
-        gentle = trial.shape(T, 0.25 * T) or move_profile(T, 0.25 * T, 0.0, ramp_order)
+        gentle = trial.shape(T, LONGEST_RAMP * T) or move_profile(T, LONGEST_RAMP * T, 0.0, ramp_order)
         return done(gentle, False, fastest, why)
     hint = (
         f"the fastest feasible is {fastest:.2f} s (--arrive-by {math.ceil(fastest * 100) / 100:g})"
