@@ -303,7 +303,9 @@ def _fastest(trial: _Trial, above: float | None) -> float | None:
             lo = mid
         else:
             hi = mid
-    return math.ceil(hi / TIME_RESOLUTION) * TIME_RESOLUTION
+    # on the resolution's grid, if that passes too (the demands need not fall strictly with T), else the one found
+    t = round(math.ceil(hi / TIME_RESOLUTION - 1e-9) * TIME_RESOLUTION, 6)
+    return t if trial.best(t)[0] is not None else hi
 
 
 __all__ = ["TILT_RATE_BUDGET", "MovePlan", "move_reference", "plan_move"]
