@@ -3,8 +3,9 @@
 
 For each move "D m in T s" at ``--height`` (2 m), one SITL boot flies, one after the other:
 
-- **slung**: ``slung fly --vehicle ardupilot-sitl-quad`` on waypoints (rest ``REST_S``, D m north in T s, rest
-  ``AFTER_S``), ``--end land``, ``--stale-limit 0.25``
+- **slung**: ``slung fly --vehicle ardupilot-sitl-quad --move D,0,H --arrive-by T`` (rest ``REST_S``, the move,
+  rest ``AFTER_S``; a time the pre-flight check refuses is flown at the fastest it proposes, and the row says so),
+  or with ``--kind waypoints`` timed waypoints, ``--end land``, ``--stale-limit 0.25``
   (as the tests: a shared machine), plus any ``--slung-arg``;
 - **stock**: GUIDED take-off, a hold until the load settles, one position target D m north
   (``sim_bridge.sitl.ardupilot_guided``): ArduPilot's own position controller and limits, no swing damping; LAND.
@@ -18,7 +19,7 @@ stock's when its target is sent. slung's **end** says how its flight ended and t
 on a loaded machine a starved loop flies worse.
 
     flock /tmp/ardupilot-instance0.lock python bench/ardupilot_payload_moves.py [--moves 3:2.5,3:3,3:4,10:6]
-        [--height 2] [--only slung|stock] [--slung-arg=--law --slung-arg=torque] [--out DIR]
+        [--height 2] [--only slung|stock] [--kind move|waypoints] [--slung-arg=--law --slung-arg=torque] [--out DIR]
 
 Prints the table and writes ``DIR/moves.json`` (every figure, in SI units). Runs about 90 s per move and 45 s of boot.
 """
@@ -61,15 +62,38 @@ def trajectory(distance: float, duration: float, height: float) -> str:
     return "".join(f"[[waypoint]]\nt = {t:g}\nx = {x:g}\ny = 0.0\nz = {height:g}\n" for t, x in pts)
 
 
+def flyable_time(distance: float, asked: float, height: float) -> float:
+    """The move time ``slung fly --move`` flies for "D m by T s": T when the pre-flight check passes it, else the
+    fastest feasible time it proposes (s)."""
+    from estimators.model.vehicle import load_vehicle
+    from offboard.control.move_planning import plan_move
+    from offboard.control.reference import TrajectoryError
+    from offboard.flight.fly_move import move_limits
+
+    v = load_vehicle("ardupilot-sitl-quad")
+    lim = move_limits(v, argparse.Namespace(output="attitude", mask=None, swing_limit=0.8))
+    start, goal = (0.0, 0.0, height), (distance, 0.0, height)
+    try:
+        return plan_move(start, goal, v, lim, arrive_by=asked).profile.duration
+    except TrajectoryError:
+        return plan_move(start, goal, v, lim).profile.duration
+
+
 def fly_slung(
-    sitl: ArduPilotSitl, distance: float, duration: float, height: float, out: Path, extra: list[str]
+    sitl: ArduPilotSitl, distance: float, duration: float, height: float, out: Path, extra: list[str], kind: str
 ) -> tuple[float | None, float | None, str]:
-    """One slung flight: (control start, control end (boot s), end) or (None, None, why) when it did not fly."""
+    """One slung flight: (control start, control end (boot s), end) or (None, None, why) when it did not fly.
+    ``kind``: ``move`` (``slung fly --move``, the move in ``duration`` s) or ``waypoints`` (the timed waypoints)."""
     out.mkdir(parents=True, exist_ok=True)
-    traj = out / "trajectory.toml"
-    traj.write_text(trajectory(distance, duration, height), encoding="utf-8")
     cmd = [sys.executable, "-m", "offboard.cli", "fly", "--connect", sitl.connection_url]
-    cmd += ["--vehicle", "ardupilot-sitl-quad", "--trajectory", str(traj), "--no-figures", "--end", "land"]
+    if kind == "move":
+        cmd += ["--move", f"{distance:g},0,{height:g}", "--arrive-by", f"{duration:g}"]
+        cmd += ["--duration", f"{REST_S + duration + AFTER_S:g}"]
+    else:
+        traj = out / "trajectory.toml"
+        traj.write_text(trajectory(distance, duration, height), encoding="utf-8")
+        cmd += ["--trajectory", str(traj)]
+    cmd += ["--vehicle", "ardupilot-sitl-quad", "--no-figures", "--end", "land"]
     # the SITL and this loop share a machine with other work: the staleness watchdog of the tests (test_ardupilot_sitl)
     cmd += ["--stale-limit", "0.25", "--out", str(out / "fly"), *extra]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
@@ -106,6 +130,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--moves", default="3:2.5,3:3,3:4,10:6", help="D:T pairs, metres:seconds (default %(default)s)")
     p.add_argument("--height", type=float, default=2.0, help="flight height above take-off, m (default 2)")
     p.add_argument("--only", choices=("slung", "stock"), help="fly only one of the two")
+    p.add_argument(
+        "--kind",
+        choices=("move", "waypoints"),
+        default="move",
+        help="slung's reference: move (slung fly --move D,0,H --arrive-by T, the default; a time it refuses is "
+        "flown at the fastest it proposes) or waypoints (timed waypoints, the tables before issue 37's moves)",
+    )
     p.add_argument("--slung-arg", action="append", default=[], help="one more argument for slung fly (repeatable)")
     p.add_argument("--out", type=Path, help="where the flights and moves.json go (default a new temporary folder)")
     a = p.parse_args(argv)
@@ -120,13 +151,20 @@ def main(argv: list[str] | None = None) -> int:
         for d, t in moves:
             label = f"{d:g} m in {t:g} s"
             if a.only != "stock":
-                t0, t1, end = fly_slung(sitl, d, t, a.height, out / f"slung-{d:g}m-{t:g}s", a.slung_arg)
+                flown = flyable_time(d, t, a.height) if a.kind == "move" else t
+                where = out / f"slung-{d:g}m-{t:g}s"
+                t0, t1, end = fly_slung(sitl, d, flown, a.height, where, a.slung_arg, a.kind)
                 fig = None
                 if t0 is not None and t1 is not None and t1 > t0 + REST_S:  # else it ended before the move
                     log = read_dataflash(sitl.dataflash_logs()[-1])
-                    fig = move_figures(log, t0 + REST_S, min(t1, t0 + REST_S + t + AFTER_S), d)
-                rows.append(row(f"slung, {label}", fig, end))
-                results.append({"who": "slung", "D": d, "T": t, "end": end, **(fig.as_dict() if fig else {})})
+                    fig = move_figures(log, t0 + REST_S, min(t1, t0 + REST_S + flown + AFTER_S), d)
+                if flown != t:
+                    label += f" (refused; the proposed {flown:.2f} s flown)"
+                rows.append(row(f"slung {a.kind}, {label}", fig, end))
+                results.append(
+                    {"who": "slung", "kind": a.kind, "D": d, "T": t, "flown_T": flown, "end": end}
+                    | (fig.as_dict() if fig else {})
+                )
                 print(rows[-1], flush=True)
             if a.only != "slung":
                 mv = fly_stock_move(sitl.connection_url, a.height, d, after_s=AFTER_S)

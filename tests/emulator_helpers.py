@@ -410,3 +410,25 @@ class UdpRelay(threading.Thread):
                 self.emu_addr = addr
                 if self.from_emulator(data):
                     self.sock.sendto(data, self.loop_addr)
+
+
+def fly_against_emulator(
+    argv: list[str], flavor: str = "px4", vehicle: str | None = None
+) -> tuple[dict[str, Any], Path]:
+    """``slung fly`` with the options ``argv`` (without ``--connect``) against the bundled emulator in a thread
+    (``flavor``, lockstep at 250 Hz, ``vehicle`` or the paper's), its truth recorded: (metrics, run folder)."""
+    import argparse
+
+    from offboard.flight.fly_cli import configure as fly_configure
+    from offboard.flight.fly_cli import fly
+    from offboard.harness.demo_cli import EmulatorThread, free_udp_port
+
+    port = free_udp_port()
+    p = argparse.ArgumentParser()
+    fly_configure(p)
+    args = p.parse_args(["--connect", f"udpin:127.0.0.1:{port}", *argv])
+    emu = EmulatorThread(flavor, port, lockstep=True, period=0.004, vehicle=vehicle).start()
+    try:
+        return fly(args, lockstep=True, truth_probe=emu.truth, quiet=True, on_reference_start=emu.set_reference_start)
+    finally:
+        emu.stop()

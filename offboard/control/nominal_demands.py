@@ -182,6 +182,7 @@ def profile(ts: np.ndarray, J: np.ndarray, v: Vehicle) -> dict[str, np.ndarray]:
         "tilt": tilt,
         "linearity": linear,
         "tilt_rate": tilt_rate,
+        "tilt_accel": np.hypot(ndd[:, 0], ndd[:, 1]),
         "tilt_jerk": tilt_jerk,
         "thrust": thrust,
         "tau_phi": tau_phi,
@@ -199,7 +200,8 @@ def nominal_profile(reference: Any, times: Sequence[float], vehicle: Vehicle) ->
     Keys (SI, model frame): ``t``; ``swing`` (rad, linear ``|F''| / g``), ``alpha_y``, ``alpha_x`` (rad);
     ``theta``, ``phi`` (rad, Euler tilt of the linear chain at the reference heading) and their rates (rad/s);
     ``tilt`` (rad, the larger of ``|phi|``, ``|theta|``); ``linearity`` (rad, the larger of the swing and the tilt
-    magnitude); ``tilt_rate`` (rad/s); ``tilt_jerk`` (rad/s^3, the magnitude of the third derivative of the world
+    magnitude); ``tilt_rate`` (rad/s); ``tilt_accel`` (rad/s^2, the magnitude of the world tilt's second derivative,
+    ``F^(6)/c + F^(4)/g`` per axis); ``tilt_jerk`` (rad/s^3, the magnitude of the third derivative of the world
     tilt, by differences: needs a fine grid); ``thrust`` (N); ``tau_phi``, ``tau_theta``, ``tau_psi`` (N m, body
     FLU); ``tension`` (N); ``motor_max``, ``motor_min`` (N, X mixer).
     """

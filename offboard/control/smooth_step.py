@@ -20,8 +20,9 @@ from offboard.control.jet import PolynomialTaylor
 STEP_ORDER = 7  # derivatives 1..7 vanish at both ends -> degree 2*7+1 = 15
 
 
-def _step_coefficients(order: int) -> list[Fraction]:
-    """Monomial coefficients of S(x) = x^(N+1) sum_k C(N+k, k) C(2N+1, N-k) (-x)^k (the order-N smooth step)."""
+def step_coefficients(order: int) -> list[Fraction]:
+    """Monomial coefficients of S(x) = x^(N+1) sum_k C(N+k, k) C(2N+1, N-k) (-x)^k (the order-N smooth step: degree
+    2N+1, derivatives 1..N zero at 0 and 1; N = 7 is every reference's step, lower orders shape a move's ramps)."""
     n = order
     coef = [Fraction(0)] * (2 * n + 2)
     for k in range(n + 1):
@@ -67,14 +68,14 @@ def _solve_exact(a: list[list[Fraction]], b: list[Fraction]) -> list[Fraction]:
     return [m[i][n] for i in range(n)]
 
 
-STEP = PolynomialTaylor([float(c) for c in _step_coefficients(STEP_ORDER)])
-STEP_INTEGRAL = PolynomialTaylor([float(c) for c in _antiderivative(_step_coefficients(STEP_ORDER))])  # 1/2 at 1
+STEP = PolynomialTaylor([float(c) for c in step_coefficients(STEP_ORDER)])
+STEP_INTEGRAL = PolynomialTaylor([float(c) for c in _antiderivative(step_coefficients(STEP_ORDER))])  # 1/2 at 1
 #: the velocity step on [0, 1/2]: G(x) = I(2x), I the integral of S (G(1/2) = 1/2); on [1/2, 1] G(x) = 1 - G(1 - x).
 #: Its velocity G'(x) = 2 S(2x) rises with the smooth step over the first half and falls with it over the second:
 #: peak 2 (the mean's 2x, against S's 3.14x) and peak acceleration 4 max S' = 12.6 against S's 15.1 per unit step and
 #: time; derivatives 1..8 vanish at 0 and 1 and 2..8 at 1/2 (C^8)
 VELOCITY_STEP_HALF = PolynomialTaylor(
-    [float(c * 2**j) for j, c in enumerate(_antiderivative(_step_coefficients(STEP_ORDER)))]
+    [float(c * 2**j) for j, c in enumerate(_antiderivative(step_coefficients(STEP_ORDER)))]
 )
 _H0_EXACT, _H1_EXACT = _hermite_velocity_basis(STEP_ORDER)
 H0 = PolynomialTaylor([float(c) for c in _H0_EXACT])

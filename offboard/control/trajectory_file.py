@@ -9,7 +9,9 @@ import itertools
 import math
 from pathlib import Path
 
+from offboard.control.move_planning import move_reference
 from offboard.control.reference import Composite, TrajectoryError, _finite
+from offboard.control.reference_moves import DEFAULT_RAMP_ORDER, move_profile
 from offboard.control.reference_patterns import SHAPES, circle, figure_eight, hover, waypoints
 
 try:
@@ -21,10 +23,11 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 # --------------------------------------------------------------------------------------------------------------
 # trajectory files
 # --------------------------------------------------------------------------------------------------------------
-_KINDS = ("waypoints", "hover", "circle", "figure_eight")
+_KINDS = ("waypoints", "hover", "circle", "figure_eight", "move")
 _KEYS = {
     "waypoints": {"kind", "t_start", "speed", "segment_times", "yaw_rate", "min_segment_time", "shape", "waypoint"},
     "hover": {"kind", "x", "y", "z", "psi", "psi_deg"},
+    "move": {"kind", "from", "to", "time", "ramp", "cruise", "ramp_order", "t_start", "hold", "psi", "psi_deg"},
     "circle": {"kind", "center", "radius", "period", "z", "t_start", "ramp_time", "laps", "psi", "psi_deg"},
     "figure_eight": {
         "kind",
@@ -63,12 +66,16 @@ def _reference_from_table(data: dict, where: str) -> Composite:
     unknown = sorted(set(data) - _KEYS[kind])
     if unknown:
         raise TrajectoryError(f"{where}: unknown key(s) for kind '{kind}': {', '.join(unknown)}")
-    num = {k: v for k, v in data.items() if k not in ("kind", "waypoint", "center", "segment_times", "shape")}
+    num = {
+        k: v for k, v in data.items() if k not in ("kind", "waypoint", "center", "segment_times", "shape", "from", "to")
+    }
     for k, v in num.items():
         if k != "laps":
             _finite(f"{where}: {k}", v)
     if kind == "hover":
         return hover(_need(where, data, "x"), _need(where, data, "y"), _need(where, data, "z"), _file_psi(where, data))
+    if kind == "move":
+        return _move(data, where)
     if kind in ("circle", "figure_eight"):
         center = _need(where, data, "center")
         if not isinstance(center, list) or len(center) != 2:
@@ -138,6 +145,25 @@ def _reference_from_table(data: dict, where: str) -> Composite:
     except TrajectoryError as exc:
         msg = str(exc)
         raise TrajectoryError(msg if msg.startswith(where) else f"{where}: {msg}") from None
+
+
+def _move(data: dict, where: str) -> Composite:
+    """A planned move written out in full (``slung fly --move`` writes one into its run folder, which replay reads):
+    from, to (m, [x, y, z]), its time and ramp (s), optionally cruise (s), ramp_order, t_start and hold (s)."""
+    ends = []
+    for key in ("from", "to"):
+        v = _need(where, data, key)
+        if not isinstance(v, list) or len(v) != 3:
+            raise TrajectoryError(f"{where}: {key} must be [x, y, z] in m, got {v!r}")
+        ends.append([_finite(f"{where}: {key}", x) for x in v])
+    order = data.get("ramp_order", DEFAULT_RAMP_ORDER)
+    try:
+        shape = move_profile(_need(where, data, "time"), _need(where, data, "ramp"), data.get("cruise", 0.0), order)
+        return move_reference(
+            ends[0], ends[1], shape, data.get("t_start", 0.0), data.get("hold", 0.0), _file_psi(where, data)
+        )
+    except TrajectoryError as exc:
+        raise TrajectoryError(f"{where}: {exc}") from None
 
 
 def load_trajectory_file(path: str | Path) -> Composite:

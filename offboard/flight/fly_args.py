@@ -70,10 +70,20 @@ def signing_config(args: argparse.Namespace) -> Any:
 
 
 def add_reference_arguments(p: argparse.ArgumentParser) -> None:
-    """--scenario / --trajectory / --duration."""
+    """--scenario / --trajectory / --move (--arrive-by, --max-accel, --max-speed) / --duration."""
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--scenario", metavar="NAME", help="named scenario (paper, rest-to-rest, hover, circle)")
     g.add_argument("--trajectory", metavar="FILE", help="trajectory file (TOML, docs/references.md)")
+    g.add_argument(
+        "--move",
+        metavar="X,Y,Z",
+        help="go to the goal X,Y (m, north and west of where control starts) at height Z (m above take-off), the load "
+        "at rest at both ends: by --arrive-by, or within --max-accel / --max-speed, else as fast as the vehicle "
+        "allows; e.g. --move 3,0,2 --arrive-by 4 (docs/references.md, Moves)",
+    )
+    p.add_argument("--arrive-by", type=positive_float, metavar="S", help="with --move: the move's time, s")
+    p.add_argument("--max-accel", type=positive_float, metavar="M/S2", help="with --move: peak acceleration, m/s^2")
+    p.add_argument("--max-speed", type=positive_float, metavar="M/S", help="with --move: peak speed, m/s")
     p.add_argument("--duration", type=positive_float, metavar="S", help="flight time under offboard control, s")
 
 

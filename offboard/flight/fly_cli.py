@@ -3,7 +3,8 @@
 
 Usage (the main options; ``slung fly --help`` and ``docs/usage-fly-demo.md`` list every one)::
 
-    slung fly --connect URL (--scenario NAME | --trajectory FILE) [--duration S] [--output attitude|actuator]
+    slung fly --connect URL (--scenario NAME | --trajectory FILE | --move X,Y,Z [--arrive-by S]) [--duration S]
+              [--output attitude|actuator]
               [--mask attitude|attitude+rates|rates] [--rate HZ] [--vehicle FILE|NAME] [--law auto|attitude|torque]
               [--controller NAME]
               [--backend pymavlink|mavsdk] [--lockstep] [--no-takeoff] [--external-feedforward]
@@ -104,12 +105,17 @@ def set_realtime_priority(priority: int) -> str | None:
     return None
 
 
-def make_reference(args: argparse.Namespace) -> tuple[Scenario, float]:
-    """The scenario (or a trajectory wrapped as one) and the flight duration: the reference part only (plant-free,
-    ``offboard.control.scenarios``); a live flight starts wherever the vehicle is."""
+def make_reference(args: argparse.Namespace, vehicle: Any = None, quiet: bool = False) -> tuple[Scenario, float]:
+    """The scenario (or a trajectory or a ``--move`` planned on ``vehicle``, wrapped as one) and the flight
+    duration: the reference part only (plant-free, ``offboard.control.scenarios``); a live flight starts wherever the
+    vehicle is."""
     from offboard.control.scenarios import make_scenario
     from offboard.control.trajectory_file import load_trajectory_file
+    from offboard.flight.fly_move import check_move_options, move_scenario
 
+    check_move_options(args)
+    if getattr(args, "move", None) is not None:
+        return move_scenario(args, vehicle, quiet)
     if getattr(args, "scenario", None):
         sc = make_scenario(args.scenario, duration=args.duration)
         return sc, sc.duration
@@ -218,7 +224,7 @@ def fly(
 
     out_dir = prepare_output_dir(args.out)
     vehicle = load_vehicle(args.vehicle)
-    scenario, duration = make_reference(args) if scenario is None else (scenario, scenario.duration)
+    scenario, duration = make_reference(args, vehicle, quiet) if scenario is None else (scenario, scenario.duration)
     check_reference_bounds(scenario, duration)
     line = vehicle.cable_length if vehicle.mass_load > 0.0 else 0.0  # no load: no swing to allow for
     cfg = build_loop_config(args, lockstep, takeoff, inject, line)
