@@ -8,16 +8,18 @@ IMU alone.
 One SITL boot (instance 0, 1.2 kg on 1 m; boot to EKF3 position is about 40 s) serves the module, and two flights
 are flown in it with the real command line (``slung -v fly`` in a subprocess):
 
-- **move**: take-off to 2 m, a 2 s hover, 3 m north in 4 s (waypoints), 15 s at the goal, ``--end land``;
+- **move**: take-off to 2 m, then the move as a user gives it (``--move 3,0,2 --arrive-by 4``: a 2 s hover, 3 m north
+  arriving in 4 s, the load at rest at both ends), 15 s at the goal, ``--end land``;
 - **hold**: take-off again, a hover, then Ctrl-C (a real SIGINT): the hand-over to ArduPilot's hold (BRAKE), which
   must keep the vehicle and its load where they were; the test then lands it as a ground station would.
 
 The bounds are generous (a loaded shared machine flies these; issue 37's table has the figures measured on a quiet
-one) but each can fail: completed, arrival within 1.5 s of the asked 4 s, swing peak under 3.5x the physical bound at
-the arrival time, residual swing under 2 deg, overshoot under 0.3 m, ArduPilot's own tilt (ATT) within the tilt limit
-``slung fly`` announced. Payload flights run one at a time on the machine (the payload simulation always connects
-to instance 0): on a shared machine run this file under ``flock /tmp/ardupilot-instance0.lock``; ``.ci/run`` needs
-nothing beyond the SITL folder. Without the SITL the tests skip saying so; ``SLUNG_REQUIRE_REAL=1`` fails instead.
+one) but each can fail: completed, arrival within 1.5 s of the asked 4 s, swing peak under 2x the physical bound at
+the arrival time (the move's profile flew 1.4x on a quiet machine; the waypoints, 2.5-2.8x, would fail it), residual
+swing under 2 deg, overshoot under 0.3 m, ArduPilot's own tilt (ATT) within the tilt limit ``slung fly`` announced.
+Payload flights run one at a time on the machine (the payload simulation always connects to instance 0): on a shared
+machine run this file under ``flock /tmp/ardupilot-instance0.lock``; ``.ci/run`` needs nothing beyond the SITL folder.
+Without the SITL the tests skip saying so; ``SLUNG_REQUIRE_REAL=1`` fails instead.
 """
 
 from __future__ import annotations
@@ -51,13 +53,19 @@ from sim_bridge.sitl.ardupilot_sitl import ArduPilotSitl, ArduPilotSitlError, wh
 
 HEIGHT_M = 2.0
 MOVE_M, MOVE_S, REST_S, AFTER_S = 3.0, 4.0, 2.0, 15.0
-TRAJECTORIES = {
-    "move": "".join(
-        f"[[waypoint]]\nt = {t}\nx = {x}\ny = 0.0\nz = {HEIGHT_M}\n"
-        for t, x in ((0.0, 0.0), (REST_S, 0.0), (REST_S + MOVE_S, MOVE_M), (REST_S + MOVE_S + AFTER_S, MOVE_M))
-    ),
-    "hold": f'kind = "hover"\nx = 0.0\ny = 0.0\nz = {HEIGHT_M}\n',
+#: what each flight is asked: the move as a user gives it (its 2 s rest before the move is ``REST_S``), the hold a hover
+REFERENCES = {
+    "move": [
+        "--move",
+        f"{MOVE_M},0,{HEIGHT_M}",
+        "--arrive-by",
+        str(MOVE_S),
+        "--duration",
+        str(REST_S + MOVE_S + AFTER_S),
+    ],
+    "hold": ["--trajectory", "trajectory.toml"],
 }
+HOLD_TRAJECTORY = f'kind = "hover"\nx = 0.0\ny = 0.0\nz = {HEIGHT_M}\n'
 #: Ctrl-C this long (wall s) after offboard control started, and the hold judged for this long after the hand-over
 SIGINT_AFTER_S = 6.0
 HOLD_JUDGED_S = 6.0
@@ -93,8 +101,7 @@ class Flight:
 def _fly(sitl: ArduPilotSitl, name: str, base: Path) -> Flight:
     out = base / name
     out.mkdir(parents=True, exist_ok=True)
-    traj = out / "trajectory.toml"
-    traj.write_text(TRAJECTORIES[name], encoding="utf-8")
+    (out / "trajectory.toml").write_text(HOLD_TRAJECTORY, encoding="utf-8")
     flight = Flight(name, out)
     cmd = [
         sys.executable,
@@ -106,8 +113,7 @@ def _fly(sitl: ArduPilotSitl, name: str, base: Path) -> Flight:
         sitl.connection_url,
         "--vehicle",
         "ardupilot-sitl-quad",
-        "--trajectory",
-        str(traj),
+        *REFERENCES[name],
         "--no-figures",
         "--end",
         "land",
@@ -198,7 +204,7 @@ def test_move_is_judged_on_the_payload_truth(flights: tuple[ArduPilotSitl, dict[
     fig = move_figures(f.log, t_move, t_move + MOVE_S + AFTER_S, MOVE_M)
     summary = {k: round(v, 3) for k, v in fig.as_dict().items()}
     assert fig.arrival_s <= MOVE_S + 1.5, summary
-    assert fig.peak_rad <= 3.5 * fig.bound_rad, summary
+    assert fig.peak_rad <= 2.0 * fig.bound_rad, summary
     assert fig.peak_rad >= 0.5 * physical_bound(MOVE_M, MOVE_S + 1.5), summary  # the load did swing: a live judge
     assert fig.residual_span_s >= 9.0 and fig.residual_rad <= math.radians(2.0), summary
     assert fig.overshoot_m <= 0.3, summary
