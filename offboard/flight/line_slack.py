@@ -49,6 +49,8 @@ class LineSlackWatch:
         #: every slack spell: (start, end or None while slack), vehicle s
         self.spells: list[tuple[float, float | None]] = []
         self.threshold = 0.5 * share * gravity
+        #: the largest window average seen (m/s^2): how close a flight came to the threshold
+        self.peak = -math.inf
 
     def threshold_for(self, acc_var: float) -> float:
         """The detection threshold (m/s^2) for the learner's accelerometer noise ``acc_var`` ((m/s^2)^2 per
@@ -66,6 +68,7 @@ class LineSlackWatch:
         while w and w[0][0] <= t - WINDOW_S:
             w.popleft()
         mean = sum(r for _, r in w) / len(w)
+        self.peak = max(self.peak, mean)
         if self._threshold_held is None:
             self.threshold = self.threshold_for(acc_var)
         above = mean > self.threshold
@@ -104,9 +107,11 @@ class LineSlackWatch:
         return "line_taut", f"the line is taut again at t={since:.2f} s after {since - start:.2f} s slack"
 
     def summary(self) -> dict[str, object]:
-        """``metrics.json``'s ``config.hover_thrust_learning.line_slack``: the threshold, the spells (start, s)."""
+        """``metrics.json``'s ``config.hover_thrust_learning.line_slack``: the threshold and the largest window
+        average (m/s^2), the spells (start, s)."""
         return {
             "threshold": round(self.threshold, 3),
+            "peak": round(self.peak, 3) if math.isfinite(self.peak) else None,
             "spells": [[round(a, 3), None if b is None else round(b - a, 3)] for a, b in self.spells],
         }
 
