@@ -3,8 +3,9 @@ told, and what does the swing estimate do? (issue 38, "slack line and estimate s
 
 ``slung fly --vehicle ardupilot-sitl-quad`` flies timed waypoints D m north in T s at ``--height`` (default 3 m in
 2.5 s: beyond the pre-flight check, so ``--force``; ``bench/ardupilot_payload_moves.py --kind waypoints``'s flight),
-``--end land``. Judged on the DataFlash truth (``sim_bridge.sitl.ardupilot_dataflash``): the line's tension
-(``SLUP.Tens``, 10 Hz) below ``SLACK_N`` is slack; slung's ``line_slack`` / ``line_taut`` events (``events.json``)
+``--end land``. Judged on the DataFlash truth (``sim_bridge.sitl.ardupilot_dataflash``, 10 Hz): the line's pull on the
+vehicle (``SLUP.VFN/VFE/VFD``, N) below ``SLACK`` of the payload's weight is slack, below ``PARTLY`` partly slack
+(ArduPilot's tension ratio ``Tens`` beside it); slung's ``line_slack`` / ``line_taut`` events (``events.json``)
 against those spells; the swing estimate along the move (``est_alpha_y`` of the tick log) against the truth
 (``atan2(PN, PD)`` of SLUP) at each SLUP sample of the control window, and how the flight ended.
 
@@ -33,8 +34,8 @@ from offboard.logs.timeseries_file import read_table
 from sim_bridge.sitl.ardupilot_dataflash import read_dataflash
 from sim_bridge.sitl.ardupilot_sitl import ArduPilotSitl
 
-#: a tension below this (N) is a slack line (the payload's weight is 11.8 N; SLUP logs 0 when slack)
-SLACK_N = 0.5
+#: a pull below this share of the payload's weight (11.8 N for 1.2 kg) is a slack line; below PARTLY partly slack
+SLACK, PARTLY = 0.1, 0.5
 
 
 def spells(t: np.ndarray, slack: np.ndarray) -> list[tuple[float, float]]:
@@ -60,18 +61,29 @@ def judge(folder: Path, log_path: Path) -> dict[str, object]:
     s = log.slup.window(t0, t1)
     truth = np.arctan2(s["pn"], s["pd"])
     est_at = np.interp(s.t, tv, est)
+    pull = np.sqrt(s["pull_n"] ** 2 + s["pull_e"] ** 2 + s["pull_d"] ** 2)
+    weight = float(np.median(s["pull_d"][:10])) if len(s) >= 10 else math.nan  # hanging still at the start
     events = json.loads((folder / "events.json").read_text())["loop"]
     told = [(e["kind"], e["t_vehicle"], e["reason"]) for e in events if e["kind"] in ("line_slack", "line_taut")]
     m = json.loads((folder / "metrics.json").read_text())
     watch = (m["config"].get("hover_thrust_learning") or {}).get("line_slack")
     rows = [
-        (round(float(ti) - t0, 2), round(float(tn), 2), round(math.degrees(tr), 1), round(math.degrees(e), 1))
-        for ti, tn, tr, e in zip(s.t, s["tension"], truth, est_at, strict=True)
+        (
+            round(float(ti) - t0, 2),
+            round(float(tn), 2),
+            round(float(f), 2),
+            round(math.degrees(tr), 1),
+            round(math.degrees(e), 1),
+        )
+        for ti, tn, f, tr, e in zip(s.t, s["tension"], pull, truth, est_at, strict=True)
     ]
     return {
         "control": [t0, t1],
         "ended_by": m["flight"]["ended_by"],
-        "slack_truth": [(a - t0, b - t0) for a, b in spells(s.t, s["tension"] < SLACK_N)],
+        "weight_n": weight,
+        "slack_truth": [(a - t0, b - t0) for a, b in spells(s.t, pull < SLACK * weight)],
+        "partly_slack_truth": [(a - t0, b - t0) for a, b in spells(s.t, pull < PARTLY * weight)],
+        "least_pull_n": float(np.min(pull)) if len(pull) else math.nan,
         "told": [(k, t - t0, r) for k, t, r in told],
         "watch": watch,
         "rows": rows,
@@ -102,11 +114,13 @@ def main(argv: list[str] | None = None) -> int:
             r = judge(where / "fly", sitl.dataflash_logs()[-1]) | {"D": d, "T": t}
             results.append(r)
             print(f"\n{d:g} m in {t:g} s: ended by {r['ended_by']}; times in s after the start of control")
-            print(f"slack in the truth (SLUP tension < {SLACK_N} N): {r['slack_truth']}")
+            print(f"hanging still the line pulls {r['weight_n']:.2f} N; least pull {r['least_pull_n']:.2f} N")
+            print(f"slack in the truth (pull < {SLACK:.0%} of that): {r['slack_truth']}")
+            print(f"partly slack (pull < {PARTLY:.0%}): {r['partly_slack_truth']}")
             for kind, tt, reason in r["told"]:
                 print(f"  {kind} at {tt:.2f}: {reason}")
             print(f"watch: {r['watch']}; worst estimate error {r['worst_error_deg']:.1f} deg")
-            print("| t | tension N | true swing deg | estimate deg |\n|---|---|---|---|")
+            print("| t | Tens | pull N | true swing deg | estimate deg |\n|---|---|---|---|---|")
             for row in r["rows"]:
                 print("| " + " | ".join(f"{v:g}" for v in row) + " |")
     finally:
