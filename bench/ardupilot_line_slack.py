@@ -91,6 +91,29 @@ def judge(folder: Path, log_path: Path) -> dict[str, object]:
     }
 
 
+def fly_and_judge(
+    sitl: ArduPilotSitl, d: float, t: float, height: float, extra: list[str], out: Path
+) -> dict[str, object]:
+    """One forced move D m in T s, judged (:func:`judge`) and printed."""
+    where = out / f"slung-{d:g}m-{t:g}s"
+    t0, _, end = fly_slung(sitl, d, t, height, where, ["--force", *extra], "waypoints")
+    if t0 is None:
+        print(f"{d:g} m in {t:g} s: {end}", flush=True)
+        return {"D": d, "T": t, "ended_by": end}
+    r = judge(where / "fly", sitl.dataflash_logs()[-1]) | {"D": d, "T": t}
+    print(f"\n{d:g} m in {t:g} s: ended by {r['ended_by']}; times in s after the start of control")
+    print(f"hanging still the line pulls {r['weight_n']:.2f} N; least pull {r['least_pull_n']:.2f} N")
+    print(f"slack in the truth (pull < {SLACK:.0%} of that): {r['slack_truth']}")
+    print(f"partly slack (pull < {PARTLY:.0%}): {r['partly_slack_truth']}")
+    for kind, tt, reason in r["told"]:
+        print(f"  {kind} at {tt:.2f}: {reason}")
+    print(f"watch: {r['watch']}; worst estimate error {r['worst_error_deg']:.1f} deg")
+    print("| t | Tens | pull N | true swing deg | estimate deg |\n|---|---|---|---|---|")
+    for row in r["rows"]:
+        print("| " + " | ".join(f"{v:g}" for v in row) + " |", flush=True)
+    return r
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--moves", default="3:2.5", help="D:T pairs, metres:seconds (default %(default)s)")
@@ -100,29 +123,10 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     out = a.out or Path(tempfile.mkdtemp(prefix="slung-ardupilot-slack-"))
     sitl = ArduPilotSitl(instance=0, workdir=out / "sitl")
-    results = []
     try:
         sitl.start()
         print(f"ArduPilot SITL ready after {sitl.ready_after_s:.0f} s; flights in {out}", flush=True)
-        for d, t in parse_moves(a.moves):
-            where = out / f"slung-{d:g}m-{t:g}s"
-            t0, _, end = fly_slung(sitl, d, t, a.height, where, ["--force", *a.slung_arg], "waypoints")
-            if t0 is None:
-                print(f"{d:g} m in {t:g} s: {end}", flush=True)
-                results.append({"D": d, "T": t, "ended_by": end})
-                continue
-            r = judge(where / "fly", sitl.dataflash_logs()[-1]) | {"D": d, "T": t}
-            results.append(r)
-            print(f"\n{d:g} m in {t:g} s: ended by {r['ended_by']}; times in s after the start of control")
-            print(f"hanging still the line pulls {r['weight_n']:.2f} N; least pull {r['least_pull_n']:.2f} N")
-            print(f"slack in the truth (pull < {SLACK:.0%} of that): {r['slack_truth']}")
-            print(f"partly slack (pull < {PARTLY:.0%}): {r['partly_slack_truth']}")
-            for kind, tt, reason in r["told"]:
-                print(f"  {kind} at {tt:.2f}: {reason}")
-            print(f"watch: {r['watch']}; worst estimate error {r['worst_error_deg']:.1f} deg")
-            print("| t | Tens | pull N | true swing deg | estimate deg |\n|---|---|---|---|---|")
-            for row in r["rows"]:
-                print("| " + " | ".join(f"{v:g}" for v in row) + " |")
+        results = [fly_and_judge(sitl, d, t, a.height, a.slung_arg, out) for d, t in parse_moves(a.moves)]
     finally:
         sitl.stop()
     (out / "line_slack.json").write_text(json.dumps(results, indent=1), encoding="utf-8")
