@@ -53,6 +53,8 @@ def test_a_line_slack_for_tenths_of_a_second_is_told_with_its_time_and_length() 
     assert T_JUMP <= start <= T_JUMP + 0.021, start
     assert end is not None and 0.28 <= end - start <= 0.32, (start, end)
     assert learner.slack_watch.told[0] - T_JUMP <= 0.25, learner.slack_watch.told
+    # a spell is told once the average has stayed above for SLACK_AFTER_S (0.1 s), not at the first crossing
+    assert learner.slack_watch.told[0] - start >= 0.1 - 1e-9, (learner.slack_watch.told, start)
     assert f"at t={start:.2f} s" in learner.line_events[0][1]
     assert f"after {end - start:.2f} s slack" in learner.line_events[1][1]
     assert learner.load_lost is None
