@@ -26,6 +26,7 @@ from typing import Any
 
 from estimators.identification.hover_thrust import HoverThrustEstimator
 from estimators.model.measurements import Attitude, Imu, PositionVelocity
+from offboard.flight.line_slack import LineSlackWatch
 
 #: how long (vehicle s) the learned hover throttle stays low before the load counts as lost
 LOST_AFTER_S = 1.0
@@ -71,6 +72,10 @@ class HoverThrustLearner:
         #: vehicle time (s) when it was told
         self.t_lost: float | None = None
         self.load_lost_told = False
+        #: the slack-line watch (from the start of control, with a load; ``offboard.flight.line_slack``) and the
+        #: events it has to tell, ``(kind, reason)``, drained by the loop
+        self.slack_watch: LineSlackWatch | None = None
+        self.line_events: list[tuple[str, str]] = []
 
     def start(self) -> None:
         """In the air: fuse from now on (what came before, on the ground or in the climb, is dropped)."""
@@ -81,10 +86,12 @@ class HoverThrustLearner:
         """From the start of control, a load whose share of the hover thrust is ``share`` (``m / (M + m)``): a learned
         hover throttle that falls below the one now by more than half of that share, or a vertical acceleration
         above what the thrust explains by more than half of ``share g`` (low-passed, 1 s), for :data:`LOST_AFTER_S`,
-        is a load that dropped off (:attr:`load_lost`). Only with a trusted estimate to compare with."""
+        is a load that dropped off (:attr:`load_lost`); the same residual over tenths of a second is a line gone slack
+        (:attr:`slack_watch`, ``offboard.flight.line_slack``). Only with a trusted estimate to compare with."""
         if self.ekf.valid and 0.0 < share < 1.0:
             self._watch = (self.ekf.h, share)
             self._below_since = None
+            self.slack_watch = LineSlackWatch(share, self.g)
 
     def stop(self) -> None:
         """The hand-over: no more fusions (a landing, with the load touching down first, breaks the model)."""
@@ -118,7 +125,12 @@ class HoverThrustLearner:
         speed_xy = math.hypot(pos.vx, pos.vy) if pos is not None else 0.0
         speed_z = pos.vz if pos is not None else 0.0
         ekf = self.ekf
+        innovation, acc_var = acc / n - (self.g * vertical / ekf.h - self.g), ekf.acc_var
         ekf.update(t - t_prev, acc / n, vertical, speed_xy, speed_z)
+        if self.slack_watch is not None:
+            said = self.slack_watch.update(t, innovation, acc_var)
+            if said is not None:
+                self.line_events.append(said)
         self.fusions += 1
         self.refused += ekf.test_ratio >= 1.0
         if self.t_first is None:
@@ -166,6 +178,7 @@ class HoverThrustLearner:
             "accel_noise_var": e.acc_var if self.fusions else None,
             "at_control_start": self.at_control_start,
             "load_lost": self.load_lost,
+            "line_slack": None if self.slack_watch is None else self.slack_watch.summary(),
         }
 
 

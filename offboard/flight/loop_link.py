@@ -158,6 +158,8 @@ class LinkSupervision:
             if learner.load_lost is not None and not learner.load_lost_told:
                 learner.load_lost_told = True
                 self.event("load_lost", learner.load_lost)
+            while learner.line_events:  # line_slack / line_taut (offboard.flight.line_slack)
+                self.event(*learner.line_events.pop(0))
         if not self._echo_on or msg.type_mask & ATTITUDE_IGNORE or not all(map(math.isfinite, msg.q)):
             return
         said = self.echo.target(msg.time_boot_ms * 1e-3, msg.q)

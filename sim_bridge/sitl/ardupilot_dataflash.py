@@ -4,7 +4,10 @@ and the figures of a move measured on it as issue 37 defines them.
 The SITL logs the simulation's truth beside what ArduPilot believes:
 
 - ``SLUP`` (10 Hz): the payload's position and velocity relative to the vehicle (PN / PE / PD, m; VN / VE / VD, m/s;
-  NED), its line tension ``Tens`` (N) and ``Land`` (1 while it lies on the ground): the swing's truth;
+  NED), ``Tens`` and ``Land`` (1 while it lies on the ground): the swing's truth. ``Tens`` is ArduPilot's tension
+  *ratio*, not a force (``SIM_SlungPayload.cpp``: 1 while the payload is at the line's length, falling to 0 when it
+  is 10 cm inside it, the pull scaled by it); the line's pull on the vehicle is ``VFN`` / ``VFE`` / ``VFD`` (N, NED:
+  ``VFD`` = the payload's weight, 11.8 N for 1.2 kg, hanging still; 0 on a slack line);
 - ``SIM`` (the logging rate): the simulated vehicle's true attitude (Roll / Pitch / Yaw, deg);
 - ``SIM2`` (400 Hz): its true position (PN / PE / PD, m NED from the simulation's origin) and velocity;
 - ``ATT``: ArduPilot's attitude estimate and its targets (DesRoll / DesPitch, deg): the "tilt" of issue 38;
@@ -29,7 +32,7 @@ from sim_bridge.sitl.px4_ulog import Series
 
 #: the message types read, and the columns kept of each (the rest of a log is skipped unparsed)
 COLUMNS: dict[str, tuple[str, ...]] = {
-    "SLUP": ("PN", "PE", "PD", "VN", "VE", "VD", "Tens", "Land"),
+    "SLUP": ("PN", "PE", "PD", "VN", "VE", "VD", "Tens", "Land", "VFN", "VFE", "VFD"),
     "SIM": ("Roll", "Pitch", "Yaw"),
     "SIM2": ("PN", "PE", "PD", "VN", "VE", "VD"),
     "ATT": ("Roll", "Pitch", "Yaw", "DesRoll", "DesPitch"),
@@ -56,7 +59,9 @@ class ArduPilotFlightLog:
     """The truth of one DataFlash log (see module docstring); every angle in radians."""
 
     path: Path
-    slup: Series  # pn, pe, pd, vn, ve, vd (payload minus vehicle, NED), tension (N), landed (0/1), swing (rad)
+    # pn, pe, pd, vn, ve, vd (payload minus vehicle, NED), tension (ArduPilot's ratio 0..1), landed (0/1), swing
+    # (rad), pull_n, pull_e, pull_d (the line's force on the vehicle, N, NED)
+    slup: Series
     sim_att: Series  # roll, pitch, yaw, tilt: the simulation's true attitude
     sim_pos: Series  # pn, pe, pd, vn, ve, vd: the simulation's true position, NED from its origin
     att: Series  # roll, pitch, yaw, tilt, des_roll, des_pitch, des_tilt: ArduPilot's estimate and target
@@ -119,6 +124,9 @@ def read_dataflash(path: str | Path) -> ArduPilotFlightLog:
             "ve": c["VE"],
             "vd": c["VD"],
             "tension": c["Tens"],
+            "pull_n": c["VFN"],
+            "pull_e": c["VFE"],
+            "pull_d": c["VFD"],
             "landed": c["Land"],
             "swing": np.arctan2(np.hypot(c["PN"], c["PE"]), c["PD"]),
         },
