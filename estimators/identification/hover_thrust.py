@@ -78,7 +78,7 @@ class HoverThrustEstimator:
         acc_var = self.acc_var * scale * scale
         H = -g * thrust_up / (self.h * self.h)
         innov_var = max(H * self.var * H + acc_var, acc_var)
-        innov = acc_up - (g * thrust_up / self.h - g)
+        innov = self.model_residual(acc_up, thrust_up)
         gate = self.p["HTE_ACC_GATE"]
         self.test_ratio = innov * innov / (gate * gate * innov_var)
         residual = innov
@@ -86,7 +86,7 @@ class HoverThrustEstimator:
             k = self.var * H / innov_var
             self.h = min(max(self.h + k * innov, self.h_min), self.h_max)
             self.var = min(max((1.0 - k * H) * self.var, 1e-10), 1.0)
-            residual = acc_up - (g * thrust_up / self.h - g)
+            residual = self.model_residual(acc_up, thrust_up)
         elif abs(self.ratio_lpf) > 0.2:  # refused for a while: the hover thrust moved, let the filter follow
             self.var += 1e3 * self.p["HTE_HT_NOISE"] ** 2 * dt
         a = dt / (RESIDUAL_LPF_S + dt)
@@ -99,6 +99,12 @@ class HoverThrustEstimator:
         ok = self.var < VALID_VARIANCE and (self.valid or self.test_ratio < 1.0)
         self._valid_for = self._valid_for + dt if ok else 0.0
         self.valid = self._valid_for >= VALID_AFTER_S if not self.valid else ok
+
+    def model_residual(self, acc_up: float, thrust_up: float) -> float:
+        """The measured vertical acceleration ``acc_up`` (m/s^2, up) less what the vertical thrust ``thrust_up``
+        (normalized) explains with the current hover thrust: ``g T / h - g`` (the filter's innovation before an
+        update, its residual after)."""
+        return acc_up - (self.g * thrust_up / self.h - self.g)
 
     @property
     def sigma(self) -> float:

@@ -125,7 +125,7 @@ class HoverThrustLearner:
         speed_xy = math.hypot(pos.vx, pos.vy) if pos is not None else 0.0
         speed_z = pos.vz if pos is not None else 0.0
         ekf = self.ekf
-        innovation, acc_var = acc / n - (self.g * vertical / ekf.h - self.g), ekf.acc_var
+        innovation, acc_var = ekf.model_residual(acc / n, vertical), ekf.acc_var  # before the update moves h
         ekf.update(t - t_prev, acc / n, vertical, speed_xy, speed_z)
         if self.slack_watch is not None:
             said = self.slack_watch.update(t, innovation, acc_var)
